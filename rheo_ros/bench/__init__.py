@@ -1,0 +1,1 @@
+"""Benchmarks: the paper reproduction and the estimators under noise."""

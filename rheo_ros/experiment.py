@@ -1,0 +1,90 @@
+"""The pushing experiment: the stage's motion profile and its phases (pull, keep, release)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rheo_ros.models.response import Program, Segment
+
+PHASE_NAMES = ("pull", "keep", "release")
+
+
+@dataclass(frozen=True)
+class Phase:
+    name: str
+    t_start: float
+    t_end: float
+
+    @property
+    def duration(self) -> float:
+        return self.t_end - self.t_start
+
+
+@dataclass(frozen=True)
+class StageProfile:
+    """Stage motion (contract defaults): push ``depth`` (m) at ``velocity`` (m/s), hold
+    ``keep_time`` (s), then let go; ``start_delay`` before contact and ``release_time``
+    recorded after release (s). Release is immediate: the stage leaves the specimen."""
+
+    depth: float = 0.010
+    velocity: float = 0.0005
+    keep_time: float = 48.0
+    start_delay: float = 1.0
+    release_time: float = 100.0
+
+    def __post_init__(self) -> None:
+        if self.depth <= 0 or self.velocity <= 0 or self.keep_time < 0 or self.release_time < 0:
+            raise ValueError("stage profile: depth and velocity must be positive, times non-negative")
+
+    @classmethod
+    def from_times(cls, depth: float, pull_time: float, keep_time: float, **kw: float) -> StageProfile:
+        return cls(depth=depth, velocity=depth / pull_time, keep_time=keep_time, **kw)
+
+    @property
+    def pull_time(self) -> float:
+        return self.depth / self.velocity
+
+    @property
+    def t_pull_start(self) -> float:
+        return self.start_delay
+
+    @property
+    def t_pull_end(self) -> float:
+        return self.start_delay + self.pull_time
+
+    @property
+    def t_keep_end(self) -> float:
+        return self.t_pull_end + self.keep_time
+
+    @property
+    def t_end(self) -> float:
+        return self.t_keep_end + self.release_time
+
+    @property
+    def phases(self) -> tuple[Phase, Phase, Phase]:
+        return (
+            Phase("pull", self.t_pull_start, self.t_pull_end),
+            Phase("keep", self.t_pull_end, self.t_keep_end),
+            Phase("release", self.t_keep_end, self.t_end),
+        )
+
+    def depth_at(self, t: np.ndarray) -> np.ndarray:
+        """Commanded stage depth (m, positive into the specimen; 0 once released)."""
+        t = np.asarray(t, dtype=float)
+        d = np.clip((t - self.t_pull_start) * self.velocity, 0.0, self.depth)
+        return np.where(t >= self.t_keep_end, 0.0, d)
+
+    def program(self) -> Program:
+        """The top-face displacement program (m) for the exact model response."""
+        return Program(
+            self.t_pull_start,
+            (Segment(self.pull_time, self.velocity), Segment(self.keep_time, 0.0), Segment(np.inf, None)),
+        )
+
+
+def sample_times(t_end: float, rate: float) -> np.ndarray:
+    """Sample times 0, 1/rate, ... up to ``t_end`` inclusive (s)."""
+    n = int(np.floor(t_end * rate + 1e-9))
+    return np.arange(n + 1) / rate

@@ -1,0 +1,138 @@
+"""Physical effects that extend a base model without touching it.
+
+A model is a base rheological element plus effects (``Model(three_element(...),
+(RelaxationBranch(...),))``), much as PySINDy assembles a library from parts. An
+effect changes one stage of the chain material -> mechanics -> measurement through
+a hook, so the base elements and the FE model never learn about it:
+
+- ``material(element)``: a structural change of the rheology (an extra arm);
+- ``measured_force(t, force)``: a change the sensor makes to the nodal forces.
+
+A user registers an effect from their own package with ``@register_effect`` or
+through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
+time) are parameters to fit, not a list to enumerate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from importlib.metadata import entry_points
+from typing import ClassVar, Mapping, TypeVar
+
+import numpy as np
+
+from rheo_ros.models.elements import Element, Parallel, maxwell
+
+
+class Effect:
+    """Base of all effects: a frozen dataclass whose float fields are its parameters."""
+
+    id: ClassVar[str]
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        return {f"{self.id}.{f.name}": float(getattr(self, f.name)) for f in fields(self)}
+
+    def with_parameters(self, values: Mapping[str, float]) -> Effect:
+        own = {k.split(".", 1)[1]: v for k, v in values.items() if k.startswith(self.id + ".")}
+        return replace(self, **own)
+
+    def material(self, element: Element) -> Element:
+        return element
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
+        """``force``: (T, nodes) in N at times ``t`` (s) -> what the sensor reports."""
+        return force
+
+
+_REGISTRY: dict[str, type[Effect]] = {}
+E = TypeVar("E", bound=type[Effect])
+
+
+def register_effect(cls: E) -> E:
+    """Class decorator: make an effect available by its ``id``."""
+    if cls.id in _REGISTRY and _REGISTRY[cls.id] is not cls:
+        raise ValueError(f"effect id {cls.id!r} is registered already")
+    _REGISTRY[cls.id] = cls
+    return cls
+
+
+def effect_class(effect_id: str) -> type[Effect]:
+    """The effect registered under ``effect_id`` (own catalogue, then entry points)."""
+    if effect_id not in _REGISTRY:
+        for ep in entry_points(group="rheo_ros.effects"):
+            if ep.name == effect_id:
+                register_effect(ep.load())
+    try:
+        return _REGISTRY[effect_id]
+    except KeyError:
+        raise KeyError(f"unknown effect {effect_id!r}; known: {', '.join(sorted(_REGISTRY))}") from None
+
+
+@register_effect
+@dataclass(frozen=True)
+class RelaxationBranch(Effect):
+    """A second relaxation mode: a Maxwell arm (stiffness Pa, viscosity Pa s) in parallel.
+
+    Shows in the keep phase as a fast early drop before the slow tail (eq. 22).
+    """
+
+    id: ClassVar[str] = "relaxation_branch"
+    stiffness: float
+    viscosity: float
+
+    def material(self, element: Element) -> Element:
+        arm = maxwell(self.stiffness, self.viscosity, (f"{self.id}.stiffness", f"{self.id}.viscosity"))
+        return Parallel((element, arm))
+
+
+@register_effect
+@dataclass(frozen=True)
+class SensorDrift(Effect):
+    """Tactile offset (N per node) and linear drift (N/s per node) from t = 0."""
+
+    id: ClassVar[str] = "sensor_drift"
+    offset: float
+    rate: float
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
+        return force + (self.offset + self.rate * np.asarray(t))[:, None]
+
+
+@dataclass(frozen=True)
+class Model:
+    """A base element with effects; ``name`` is ``base+effect+...`` as in the JSON report."""
+
+    base: Element
+    effects: tuple[Effect, ...] = ()
+    base_name: str = "three_element"
+
+    @property
+    def name(self) -> str:
+        return "+".join([self.base_name, *(e.id for e in self.effects)])
+
+    def rheology(self) -> Element:
+        element = self.base
+        for effect in self.effects:
+            element = effect.material(element)
+        return element
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
+        for effect in self.effects:
+            force = effect.measured_force(t, force)
+        return force
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        out = dict(self.base.parameters)
+        for effect in self.effects:
+            out.update(effect.parameters)
+        return out
+
+    def with_parameters(self, values: Mapping[str, float]) -> Model:
+        base_keys = set(self.base.parameters)
+        return replace(
+            self,
+            base=self.base.with_parameters({k: v for k, v in values.items() if k in base_keys}),
+            effects=tuple(e.with_parameters(values) for e in self.effects),
+        )

@@ -1,0 +1,175 @@
+"""Exact response of a linear rheological element to a loading program.
+
+A program is a sequence of segments, each either strain-controlled at a constant
+strain rate (pull, keep) or stress-free (release: free recovery). Within a segment
+the element is a linear time-invariant system with constant input, so the response
+is exact: a matrix exponential and its integral, no time stepping.
+
+The element is realised in state space from ``G(s) = Q(s)/s``: input the strain
+rate, output the stress. ``G`` is proper for every spring-dashpot network (at high
+frequency ``Q`` grows at most like a dashpot, ``c*s``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy import signal
+from scipy.linalg import expm
+
+from rheo_ros.models.elements import Element
+
+
+@dataclass(frozen=True)
+class Segment:
+    """``duration`` in s (``inf`` for an open end); ``strain_rate`` in 1/s, or
+    ``None`` for a stress-free segment (the specimen recovers freely)."""
+
+    duration: float
+    strain_rate: float | None
+
+
+@dataclass(frozen=True)
+class Program:
+    """Loading program starting at ``t0`` from the unloaded state."""
+
+    t0: float
+    segments: tuple[Segment, ...]
+
+    @classmethod
+    def push_hold_release(
+        cls, depth: float, pull_time: float, keep_time: float, t0: float = 0.0
+    ) -> Program:
+        """The paper's Fig. 2(b): pull at ``depth/pull_time``, keep, then release."""
+        return cls(
+            t0,
+            (
+                Segment(pull_time, depth / pull_time),
+                Segment(keep_time, 0.0),
+                Segment(np.inf, None),
+            ),
+        )
+
+    @cached_property
+    def boundaries(self) -> np.ndarray:
+        """Start time of each segment, then the end of the last one."""
+        return self.t0 + np.concatenate([[0.0], np.cumsum([s.duration for s in self.segments])])
+
+
+@dataclass(frozen=True)
+class Response:
+    t: np.ndarray
+    stress: np.ndarray
+    strain: np.ndarray
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """Realisation of ``G(s) = Q(s)/s``: ``x' = A x + B rate``, ``stress = C x + D rate``."""
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: float
+
+    @classmethod
+    def of(cls, element: Element) -> StateSpace:
+        q = element.modulus()
+        num, den = q.num, np.polymul(q.den, [1.0, 0.0])
+        while num.size > 1 and num[-1] == 0.0 and den[-1] == 0.0:
+            num, den = num[:-1], den[:-1]
+        if num.size > den.size:
+            raise ValueError("modulus grows faster than a dashpot: not a spring-dashpot network")
+        A, B, C, D = signal.tf2ss(num, den)
+        return cls(A, B[:, 0], C[0], float(D[0, 0]))
+
+
+def _propagators(A: np.ndarray, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``exp(A tau)`` and ``int_0^tau exp(A s) ds`` for each tau: arrays (T, n, n).
+
+    Spring-dashpot networks have real, simple poles, so the eigen-decomposition is
+    exact and vectorises over tau; a defective or ill-conditioned matrix (repeated
+    arms) falls back to the augmented matrix exponential.
+    """
+    n = A.shape[0]
+    lam, V = np.linalg.eig(A)
+    if np.all(np.abs(lam.imag) < 1e-12 * (1 + np.abs(lam.real))) and np.linalg.cond(V) < 1e8:
+        lam, V = lam.real, V.real
+        Vinv = np.linalg.inv(V)
+        lt = np.outer(taus, lam)
+        expo = np.exp(lt)
+        small = np.abs(lt) < 1e-8
+        with np.errstate(divide="ignore", invalid="ignore"):
+            phi = np.where(small, taus[:, None] * (1 + lt / 2), np.expm1(lt) / lam)
+        E = np.einsum("ij,tj,jk->tik", V, expo, Vinv)
+        P = np.einsum("ij,tj,jk->tik", V, phi, Vinv)
+        return E, P
+    aug = np.zeros((n * 2, n * 2))
+    aug[:n, :n], aug[:n, n:] = A, np.eye(n)
+    big = expm(aug[None] * taus[:, None, None])
+    return big[:, :n, :n], big[:, :n, n:]
+
+
+def respond(element: Element, program: Program, t: np.ndarray) -> Response:
+    """Stress and strain of ``element`` at times ``t`` (sorted) under ``program``.
+
+    Before ``program.t0`` the element is unloaded. At a segment boundary the value
+    is the one just after it (a strain-rate step makes the stress jump).
+
+    Raises:
+        ValueError: ``t`` not sorted, or a stress-free segment for an element that
+            cannot recover (a pure spring has no internal state to relax).
+    """
+    t = np.asarray(t, dtype=float)
+    if np.any(np.diff(t) < 0):
+        raise ValueError("times must be sorted")
+    ss = StateSpace.of(element)
+    n = ss.A.shape[0]
+    stress, strain = np.zeros_like(t), np.zeros_like(t)
+    x, eps = np.zeros(n), 0.0
+    edges = program.boundaries
+    for k, seg in enumerate(program.segments):
+        start, end = edges[k], edges[k + 1]
+        last = k == len(program.segments) - 1
+        mask = (t >= start) & ((t < end) | (last & (t >= end)))
+        taus = t[mask] - start
+        tau_end = np.array([end - start]) if np.isfinite(end) else np.zeros(0)
+        every = np.concatenate([taus, tau_end])
+        if seg.strain_rate is not None:
+            rate = seg.strain_rate
+            E, P = _propagators(ss.A, every)
+            xs = E @ x + (P @ ss.B) * rate
+            eps_s = eps + rate * every
+            stress[mask] = xs[: taus.size] @ ss.C + ss.D * rate
+        else:
+            Af, x0, gain = _free_dynamics(ss, x)
+            E, P = _propagators(Af, every)
+            eps0 = eps + float(ss.C @ (x0 - x) / (ss.C @ ss.B)) if ss.D == 0.0 else eps
+            xs = E @ x0
+            eps_s = eps0 + (P @ x0) @ gain
+            stress[mask] = 0.0
+        strain[mask] = eps_s[: taus.size]
+        if tau_end.size:
+            x, eps = xs[-1], float(eps_s[-1])
+    return Response(t, stress, strain)
+
+
+def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stress-free motion: ``x' = Af x``, ``strain' = gain . x``, from state ``x0``.
+
+    With an instantaneous viscous path (``D != 0``) the strain rate adjusts at once
+    to keep the stress at zero: ``rate = -C x / D``. Without one (a spring at the
+    front, ``D = 0``) the strain jumps back elastically so that ``C x0 = 0``, then
+    the rate keeps ``d(stress)/dt = C A x + C B rate = 0``.
+    """
+    if ss.D != 0.0:
+        gain = -ss.C / ss.D
+        return ss.A + np.outer(ss.B, gain), x, gain
+    cb = float(ss.C @ ss.B)
+    if cb == 0.0:
+        raise ValueError("element cannot recover freely (no internal state)")
+    x0 = x - ss.B * float(ss.C @ x) / cb
+    gain = -(ss.C @ ss.A) / cb
+    return ss.A + np.outer(ss.B, gain), x0, gain

@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "rheo_ros"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/msg_schemas", glob("msg_schemas/*.msg")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="rheo_ros developers",
+    maintainer_email="rheo_ros@example.com",
+    description="Physical parameter identification of rheological objects",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    entry_points={
+        # Every executable `ros2 run rheo_ros <name>` finds (colcon installs them in lib/rheo_ros).
+        "console_scripts": [
+            "rheo = rheo_ros.cli:main",
+        ],
+    },
+)

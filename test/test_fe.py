@@ -1,0 +1,128 @@
+"""The FE dynamic model (eq. 1, 18-21): exact model response, Fig. 3 behaviour, 2D mesh."""
+
+import numpy as np
+import pytest
+
+from rheo_ros.experiment import StageProfile, sample_times
+from rheo_ros.fe.dynamic import DynamicFE
+from rheo_ros.fe.mesh import Mesh, lame_per_unit_modulus
+from rheo_ros.fe.quasistatic import QuasiStaticFE, elastic_shape
+from rheo_ros.models.effects import Model, RelaxationBranch
+from rheo_ros.models.elements import three_element
+from rheo_ros.models.response import respond
+
+TABLE_I = dict(E=2.0, c1=8.0, c2=40.0)
+
+
+def away_from(t, edges, gap):
+    return np.abs(t[:, None] - np.asarray(edges)[None]).min(axis=1) > gap
+
+
+# Elements with a viscous path at high frequency (the paper's kind). A spring-fronted
+# element such as Fig. 8(b) rings on lumped masses: its exact response is pinned in
+# test_models instead.
+@pytest.mark.parametrize(
+    "element",
+    [three_element(**TABLE_I), Model(three_element(**TABLE_I), (RelaxationBranch(1.0, 2.0),)).rheology()],
+)
+def test_uniaxial_fe_matches_exact_model_response(element):
+    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5)
+    profile = StageProfile.from_times(0.5, 20.0, 20.0, start_delay=1.0, release_time=40.0)
+    t = sample_times(profile.t_end, 50.0)
+    fe = DynamicFE(mesh, element, density=1e-3, omega=1e3).simulate(profile, t)
+    exact = respond(element, profile.program(), t)
+    ok = away_from(t, [p.t_start for p in profile.phases], 0.05)
+    peak = np.abs(exact.stress).max()
+    # Force: unit bar, so nodal force = stress. Tolerance 1e-5 of the peak: the bar's
+    # inertia (density 1e-3: m*a ~ 4e-6 of the peak while recovering) and the
+    # omega-stabilised constraint.
+    np.testing.assert_allclose(fe.bottom_force[ok, 0], exact.stress[ok], atol=1e-5 * peak)
+    # Top node follows the stage, then recovers freely with the model's strain
+    # (1e-5 of the depth: the nodes' inertia while recovering).
+    np.testing.assert_allclose(-fe.displacement[ok, -1, 1], exact.strain[ok], atol=1e-5 * 0.5)
+
+
+def test_long_time_case_relaxes_fully_and_keeps_its_deformation(long_case):
+    rec, prof = long_case.record, long_case.profile
+    f = rec.force[:, 0]
+    end_keep = rec.force_t < prof.t_keep_end
+    assert f[end_keep][-1] < 1e-3 * f.max()                   # Fig. 3(a): force relaxed to ~0
+    u_top = -rec.marker_displacement[:, -1, 1]
+    assert u_top[-1] == pytest.approx(0.5, rel=1e-3)          # no displacement restored
+
+
+def test_short_time_case_has_residual_force_and_recovery(short_case):
+    rec, prof = short_case.record, short_case.profile
+    f = rec.force[:, 0]
+    keep_last = f[rec.force_t < prof.t_keep_end][-1]
+    assert keep_last > 0.3 * f.max()                          # Fig. 3(b): residual force
+    u_top = -rec.marker_displacement[:, -1, 1]
+    # Recovered displacement (eq. 12): (c1+c2)/(E c2) * F_K(end) on the unit bar.
+    recovered = 0.5 - u_top[-1]
+    assert recovered == pytest.approx((8 + 40) / (2 * 40) * keep_last, rel=2e-3)
+
+
+def test_force_jump_at_end_of_pull_is_eq10(short_case):
+    rec, prof = short_case.record, short_case.profile
+    t, f = rec.force_t, rec.force[:, 0]
+    before = f[np.searchsorted(t, prof.t_pull_end) - 1]
+    after = f[np.searchsorted(t, prof.t_pull_end) + 1]
+    eta_rate = 8 * 40 / 48 * 0.5 / 20
+    r = 2 / 48
+    # One sample (0.02 s) either side of t_P: the force moves by the relaxation meanwhile.
+    assert before - after == pytest.approx(eta_rate, rel=2 * 0.02 * r + 1e-4)
+
+
+def test_plane_stiffness_has_rigid_modes_and_symmetry():
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    K = mesh.stiffness(0.3)
+    np.testing.assert_allclose(K, K.T, atol=1e-12 * np.abs(K).max())
+    w = np.linalg.eigvalsh(K)
+    assert np.sum(np.abs(w) < 1e-10 * w.max()) == 3         # two translations, one rotation
+    shift = np.tile([1.0, 0.0], 25)
+    assert np.abs(K @ shift).max() < 1e-12 * np.abs(K).max()
+
+
+def test_plane_stress_lame_constants():
+    lam, mu = lame_per_unit_modulus(0.25)
+    assert lam == pytest.approx(0.25 / (1 - 0.0625))
+    assert mu == pytest.approx(0.4)
+    with pytest.raises(ValueError):
+        lame_per_unit_modulus(0.5)
+
+
+def test_plane_patch_uniform_compression():
+    """A bar free to expand sideways (only y held top and bottom): uniform stress E*strain."""
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    gamma = 0.3
+    K = mesh.stiffness(gamma)
+    held = np.zeros(mesh.n_dofs, bool)
+    held[mesh.y_dofs(mesh.bottom)] = held[mesh.y_dofs(mesh.top)] = True
+    held[0] = True  # pin one x dof against sliding
+    u = np.zeros(mesh.n_dofs)
+    u[mesh.y_dofs(mesh.top)] = -0.001
+    free = ~held
+    u[free] = np.linalg.solve(K[np.ix_(free, free)], -K[np.ix_(free, held)] @ u[held])
+    total = (K @ u)[mesh.y_dofs(mesh.bottom)].sum()
+    assert total == pytest.approx(1.0 * 0.001 / 0.08 * 0.08 * 0.0125, rel=1e-10)
+    ux = u[0::2].reshape(5, 5)
+    assert ux[0, -1] - ux[0, 0] == pytest.approx(gamma * 0.001 / 0.08 * 0.08, rel=1e-10)
+
+
+def test_plane_dynamic_fe_matches_quasistatic_limit(plane_case):
+    rec, prof, truth = plane_case.record, plane_case.profile, plane_case.truth
+    model = Model(three_element(truth["E"], truth["c1"], truth["c2"]))
+    pred = QuasiStaticFE(rec.mesh).predict(model, truth["gamma"], prof, rec.force_t, rec.marker_t)
+    ok = away_from(rec.force_t, [p.t_start for p in prof.phases], 0.05)
+    peak = np.abs(rec.force).max()
+    np.testing.assert_allclose(rec.force[ok], pred.force[ok], atol=1e-5 * peak)
+    near = away_from(rec.marker_t, [p.t_start for p in prof.phases], 0.15)
+    np.testing.assert_allclose(rec.marker_displacement[near], pred.displacement[near], atol=1e-5 * prof.depth)
+
+
+def test_plane_shape_is_symmetric_and_bulges():
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    shape = elastic_shape(mesh, 0.332)
+    np.testing.assert_allclose(shape.bottom_force, shape.bottom_force[::-1], rtol=1e-10)
+    mid = shape.displacement.reshape(5, 5, 2)[2]
+    assert mid[0, 0] < 0 < mid[-1, 0]                          # left edge out left, right out right

@@ -1,0 +1,178 @@
+"""Composable elements: exact state-space responses against the paper's closed forms."""
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import pytest
+
+from rheo_ros.models.effects import Effect, Model, RelaxationBranch, SensorDrift, effect_class, register_effect
+from rheo_ros.models.elements import (
+    Dashpot, Parallel, Series, Spring, fig8b_model, generalized_maxwell, maxwell, three_element, voigt,
+)
+from rheo_ros.models.response import Program, Segment, respond
+
+E, C1, C2 = 2.0, 8.0, 40.0          # Table I
+D, T_P, T_K = 0.5, 20.0, 20.0       # short-time case
+V = D / T_P
+R = E / (C1 + C2)
+ETA = C1 * C2 / (C1 + C2)
+REL = 1e-9                          # required agreement of closed forms and state space
+
+
+def rel_err(a, b):
+    return np.max(np.abs(np.asarray(a) - b)) / np.max(np.abs(b))
+
+
+@pytest.fixture
+def paper_response():
+    t = np.linspace(0.0, 100.0, 2001)
+    return t, respond(three_element(E, C1, C2), Program.push_hold_release(D, T_P, T_K), t)
+
+
+def test_three_element_ode_is_eq5():
+    a, b = three_element(E, C1, C2).ode_coefficients()
+    # eq. 5: sigma' + E/(c1+c2) sigma = c1c2/(c1+c2) eps'' + E c2/(c1+c2) eps'
+    np.testing.assert_allclose(a, [R, 1.0], rtol=1e-14)
+    np.testing.assert_allclose(b, [0.0, E * C2 / (C1 + C2), ETA], rtol=1e-14, atol=1e-15)
+
+
+def test_pull_phase_matches_eq6(paper_response):
+    t, r = paper_response
+    pull = t < T_P
+    # eq. 6 from t1 = 0+, where the force has jumped to c1c2/(c1+c2) * rate.
+    eq6 = C2 * V + (ETA * V - C2 * V) * np.exp(-R * t[pull])
+    assert rel_err(r.stress[pull], eq6) < REL
+
+
+def test_keep_phase_matches_eq7(paper_response):
+    t, r = paper_response
+    keep = (t >= T_P) & (t < T_P + T_K)
+    f_tp = C2 * V + (ETA * V - C2 * V) * np.exp(-R * T_P) - ETA * V   # eq. 10: the drop at t_P
+    eq7 = f_tp * np.exp(-R * (t[keep] - T_P))
+    assert rel_err(r.stress[keep], eq7) < REL
+
+
+def test_release_recovers_as_eq12_to_14(paper_response):
+    t, r = paper_response
+    rel = t >= T_P + T_K
+    f_end = respond(three_element(E, C1, C2), Program.push_hold_release(D, T_P, T_K), [T_P + T_K - 1e-12]).stress[0]
+    eps_res = (C1 + C2) / (E * C2) * f_end                                  # eq. 12
+    eps_final = D - eps_res                                                  # eq. 13/14
+    closed = eps_final + eps_res * np.exp(-E / C1 * (t[rel] - T_P - T_K))    # Voigt part creeps back
+    assert rel_err(r.strain[rel], closed) < REL
+    assert np.all(r.stress[rel] == 0.0)
+
+
+def test_voigt_strain_controlled_and_recovery():
+    t = np.linspace(0, 30, 301)
+    r = respond(voigt(E, C1), Program.push_hold_release(D, T_P, 5.0), t)
+    pull, rel = t < T_P, t >= T_P + 5.0
+    assert rel_err(r.stress[pull], E * V * t[pull] + C1 * V) < REL
+    assert rel_err(r.strain[rel], D * np.exp(-E / C1 * (t[rel] - T_P - 5.0))) < REL
+
+
+def test_maxwell_relaxes_and_springs_back():
+    t = np.linspace(0, 60, 601)
+    r = respond(maxwell(E, C2), Program.push_hold_release(D, T_P, T_K), t)
+    tau = C2 / E
+    pull, keep, rel = t < T_P, (t >= T_P) & (t < T_P + T_K), t >= T_P + T_K
+    assert rel_err(r.stress[pull], C2 * V * (1 - np.exp(-t[pull] / tau))) < REL
+    s_tp = C2 * V * (1 - np.exp(-T_P / tau))
+    assert rel_err(r.stress[keep], s_tp * np.exp(-(t[keep] - T_P) / tau)) < REL
+    # Free recovery: the spring gives back its strain at once, the dashpot keeps the rest.
+    s_end = s_tp * np.exp(-T_K / tau)
+    assert rel_err(r.strain[rel], np.full(rel.sum(), D - s_end / E)) < REL
+
+
+def test_generalized_maxwell_relaxation_is_a_prony_series():
+    arms = [(3.0, 6.0), (1.0, 40.0)]
+    model = generalized_maxwell(0.5, arms)
+    assert list(model.parameters) == ["E_inf", "E_1", "c_1", "E_2", "c_2"]
+    # Strain ramp: each arm is a Maxwell element, the spring adds E_inf * strain.
+    t = np.linspace(0, 10, 101)
+    r = respond(model, Program(0.0, (Segment(np.inf, V),)), t)
+    expected = 0.5 * V * t + sum(c * V * (1 - np.exp(-Ek / c * t)) for Ek, c in arms)
+    assert rel_err(r.stress, expected) < REL
+
+
+def test_fig8b_ode_is_eq23_and_keep_is_eq24():
+    E1, c1, E2, c2 = 1.5, 4.0, 3.0, 30.0
+    model = fig8b_model(E1, c1, E2, c2)
+    A1 = (E2 * c1 + E1 * (c1 + c2)) / (c1 * c2)
+    A2 = E1 * E2 / (c1 * c2)
+    B1, B2 = E2, E1 * E2 * (c1 + c2) / (c1 * c2)
+    a, b = model.ode_coefficients()
+    np.testing.assert_allclose(a, [A2, A1, 1.0], rtol=1e-13)
+    np.testing.assert_allclose(b, [0.0, B2, B1], rtol=1e-13, atol=1e-15)
+    prog = Program.push_hold_release(D, T_P, T_K)
+    t1 = T_P
+    h = 1e-6  # sigma'(t1): exact response, one-sided difference inside the keep phase
+    s0, s1 = respond(model, prog, [t1, t1 + h]).stress
+    ds = (s1 - s0) / h
+    root = np.sqrt(A1**2 - 4 * A2)
+    P = (root - A1) / (2 * root) * s0 - ds / root
+    Q = (root + A1) / (2 * root) * s0 + ds / root
+    m, n = (A1 + root) / 2, (A1 - root) / 2
+    t = np.linspace(t1, t1 + T_K, 201)[1:-1]
+    eq24 = P * np.exp(-m * (t - t1)) + Q * np.exp(-n * (t - t1))
+    assert rel_err(respond(model, prog, t).stress, eq24) < 1e-5  # limited by the difference for sigma'(t1)
+
+
+def test_series_and_parallel_compose_moduli():
+    s = 0.3 + 0.7j
+    q_series = Series((Spring("a", 2.0), Dashpot("b", 5.0), Spring("c", 7.0))).modulus()(s)
+    assert abs(1 / q_series - (1 / 2.0 + 1 / (5.0 * s) + 1 / 7.0)) < 1e-14
+    q_par = Parallel((Spring("a", 2.0), Dashpot("b", 5.0), maxwell(1.0, 3.0, ("e", "f")))).modulus()(s)
+    assert abs(q_par - (2.0 + 5.0 * s + 1 / (1 / 1.0 + 1 / (3.0 * s)))) < 1e-14
+
+
+def test_duplicate_parameter_names_are_refused():
+    with pytest.raises(ValueError, match="used twice"):
+        Parallel((Spring("E", 1.0), Spring("E", 2.0)))
+
+
+def test_with_parameters_replaces_values_and_refuses_unknown_names():
+    m = three_element(E, C1, C2).with_parameters({"c2": 10.0})
+    assert m.parameters == {"E": E, "c1": C1, "c2": 10.0}
+    with pytest.raises(KeyError, match="nope"):
+        three_element(E, C1, C2).with_parameters({"nope": 1.0})
+
+
+def test_relaxation_branch_adds_a_second_exponential_in_keep():
+    base = three_element(E, C1, C2)
+    model = Model(base, (RelaxationBranch(stiffness=1.0, viscosity=2.0),))
+    assert model.name == "three_element+relaxation_branch"
+    a, _ = model.rheology().ode_coefficients()
+    assert len(a) == 3  # second-order relaxation: two exponentials (eq. 22)
+    t = np.linspace(T_P + 0.5, T_P + T_K - 0.5, 50)
+    prog = Program.push_hold_release(D, T_P, T_K)
+    extra = respond(model.rheology(), prog, t).stress - respond(base, prog, t).stress
+    arm = maxwell(1.0, 2.0)
+    np.testing.assert_allclose(extra, respond(arm, prog, t).stress, rtol=1e-9)
+
+
+def test_sensor_drift_changes_only_the_measurement():
+    model = Model(three_element(E, C1, C2), (SensorDrift(offset=0.1, rate=0.01),))
+    t = np.array([0.0, 10.0])
+    out = model.measured_force(t, np.zeros((2, 3)))
+    np.testing.assert_allclose(out, [[0.1] * 3, [0.2] * 3], rtol=1e-12)
+    assert model.rheology() == model.base
+
+
+def test_user_effect_registers_and_resolves_by_id():
+    @register_effect
+    @dataclass(frozen=True)
+    class Softening(Effect):
+        id: ClassVar[str] = "test_softening"
+        factor: float
+
+        def material(self, element):
+            return element.with_parameters({"E": element.parameters["E"] * self.factor})
+
+    assert effect_class("test_softening") is Softening
+    model = Model(three_element(E, C1, C2), (Softening(0.5),))
+    assert model.rheology().parameters["E"] == pytest.approx(1.0)
+    assert model.parameters["test_softening.factor"] == 0.5
+    with pytest.raises(KeyError, match="unknown effect"):
+        effect_class("no_such_effect")
