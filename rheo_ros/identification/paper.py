@@ -25,6 +25,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.mesh import lame_per_unit_modulus
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.record import Record, RecordError
 
@@ -87,15 +88,21 @@ def fit_force_curves(
     )
 
 
-def final_displacement(record: Record, window: float = 2.0) -> np.ndarray:
-    """Marker displacements (N, 2) averaged over the last ``window`` s of the record."""
-    last = record.marker_t >= record.marker_t[-1] - window
+def final_displacement(record: Record, since: float) -> np.ndarray:
+    """Marker displacements (N, 2) averaged over the frames from ``since`` (s) to the end."""
+    last = record.marker_t >= min(since, record.marker_t[-1])
     return record.marker_displacement[last].mean(axis=0)
+
+
+# Final displacements: the specimen has recovered (to e^-15 of its Voigt strain) 15
+# Voigt times c1/E after release; every frame from then on shows the same shape.
+SETTLED_VOIGT_TIMES = 15.0
+MIN_FINAL_WINDOW = 2.0  # s
 
 
 def identify_paper(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
-    guard: float = 0.1, final_window: float = 2.0,
+    guard: float = 0.1, final_window: float | None = None,
 ) -> Estimate:
     """E, c1, c2 (and the Poisson ratio in 2D) by the paper's equations.
 
@@ -106,7 +113,11 @@ def identify_paper(
             start, short-time otherwise.
         nodes: bottom nodes to use (0-based; default all).
         guard: s left out of the fits at each phase boundary.
-        final_window: s at the end of the record averaged for the final displacements.
+        final_window: s at the end of the record averaged for the final
+            displacements. ``None``: a first pass on the last 2 s gives c1/E, then
+            every frame from 15 Voigt times after release on is averaged and the
+            equations are solved again (the paper reads one final frame; averaging
+            the recovered plateau divides the marker noise by the root of its frames).
 
     Raises:
         RecordError: a phase too short to fit, or data the model cannot explain.
@@ -118,18 +129,45 @@ def identify_paper(
     relaxed = float(np.sum(np.abs(curves.keep_end)) / np.sum(np.abs(curves.keep_start)))
     if method == "auto":
         method = "long_time" if relaxed < 0.01 else "short_time"
-    long_time = method == "long_time"
+    t_last = record.marker_t[-1]
+    since = t_last - (MIN_FINAL_WINDOW if final_window is None else final_window)
+    params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
+    if final_window is None:
+        settled = profile.t_keep_end + SETTLED_VOIGT_TIMES * params["c1"] / params["E"]
+        if settled < since:
+            since = settled
+            params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
+    labels = ["P%d" % (i + 1) for i in nodes]
+    eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
+    if mesh.geometry == "plane_fe":
+        eqs.append("IV.B least squares over " + ",".join(labels))
+    return Estimate(
+        params=params,
+        method=f"paper_{method}",
+        equations=tuple(eqs),
+        residual_rms={"force_fit": curves.residual_rms, "equations": rms},
+        message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
+                 f"final displacements averaged over {t_last - since:.3g} s"),
+    )
+
+
+def _solve_equations(
+    record: Record, curves: ForceCurves, profile: StageProfile, nodes: np.ndarray, method: str,
+    u_final: np.ndarray,
+) -> tuple[dict[str, float], float]:
+    """Solve eq. 6 (+14), 10 or 17 over the nodes by least squares; -> params, RMS residual."""
+    mesh = record.mesh
     r, t_P = curves.rate, profile.pull_time
-    u_final = final_displacement(record, final_window)
     u_dofs = u_final.ravel() if mesh.dofs_per_node == 2 else u_final[:, 1]
     bottom_y = mesh.y_dofs(mesh.bottom[nodes])
     K_lambda, K_mu = mesh.stiffness_parts
     g_lambda, g_mu = (K_lambda @ u_dofs)[bottom_y], (K_mu @ u_dofs)[bottom_y]
     plane = mesh.geometry == "plane_fe"
 
-    # Per node: a = c2 g (eq. 6, with eq. 14 in the short-time case),
-    #           b = eta g (+ eta F_K(end) / (r c2) short-time), eta = c1 c2/(c1+c2) (eq. 10 / 17).
-    F_end = np.zeros_like(curves.keep_end) if long_time else curves.keep_end
+    # Per node, with g = [K_gamma u_final] (J u_final of the paper) and eta = c1c2/(c1+c2):
+    #   a = c2 g                                   (eq. 6; with eq. 14 short-time)
+    #   b = eta g  (+ eta F_K(end) / (r c2))       (eq. 10 long-time / eq. 17 short-time)
+    F_end = np.zeros_like(curves.keep_end) if method == "long_time" else curves.keep_end
     a = curves.pull_asymptote * t_P - F_end / r
     b = (curves.pull_end - curves.keep_start) * t_P
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
@@ -137,12 +175,12 @@ def identify_paper(
     def g_of(gamma: float) -> np.ndarray:
         if not plane:
             return g_mu
-        lam = gamma / (1 - gamma**2)
-        return lam * g_lambda + g_mu / (2 * (1 + gamma))
+        lam, mu = lame_per_unit_modulus(gamma)
+        return lam * g_lambda + mu * g_mu
 
     def residuals(x: np.ndarray) -> np.ndarray:
         c2, eta = np.exp(x[0]), np.exp(x[1])
-        g = g_of(x[2]) if plane else g_of(0.0)
+        g = g_of(x[2]) if plane else g_mu
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
 
     g0 = g_of(0.3)
@@ -162,17 +200,7 @@ def identify_paper(
     params = {"E": r * (c1 + c2), "c1": c1, "c2": c2}
     if plane:
         params["gamma"] = float(sol.x[2])
-    labels = ["P%d" % (i + 1) for i in nodes]
-    eqs = ["eq.6", "eq.7", "eq.10"] if long_time else ["eq.6+14", "eq.7", "eq.15-17"]
-    if plane:
-        eqs.append("IV.B least squares over " + ",".join(labels))
-    return Estimate(
-        params=params,
-        method=f"paper_{method}",
-        equations=tuple(eqs),
-        residual_rms={"force_fit": curves.residual_rms, "equations": float(np.sqrt(np.mean(sol.fun**2)))},
-        message=f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}",
-    )
+    return params, float(np.sqrt(np.mean(sol.fun**2)))
 
 
 def deformation_error(simulated: np.ndarray, measured: np.ndarray, width: float, height: float) -> float:
