@@ -8,7 +8,15 @@ import pytest
 
 from rheo_ros.models.effects import Effect, Model, RelaxationBranch, SensorDrift, effect_class, register_effect
 from rheo_ros.models.elements import (
-    Dashpot, Parallel, Series, Spring, fig8b_model, generalized_maxwell, maxwell, three_element, voigt,
+    Dashpot,
+    Parallel,
+    Series,
+    Spring,
+    fig8b_model,
+    generalized_maxwell,
+    maxwell,
+    three_element,
+    voigt,
 )
 from rheo_ros.models.response import Program, Segment, respond
 

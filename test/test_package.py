@@ -108,7 +108,7 @@ def test_cli_reports_bad_usage_without_traceback():
 
 
 def test_message_schemas_parse_with_rosbags():
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     store = get_typestore(Stores.ROS2_KILTED)
     for path in sorted((REPO / "msg_schemas").glob("*.msg")):

@@ -21,7 +21,8 @@ from rheo_ros.record import RecordError
 from rheo_ros.simulation import Noise
 
 
-def run(replicates: int = 200, seed: int = 0, noise: Noise = Noise()) -> dict[str, Any]:
+def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dict[str, Any]:
+    noise = noise or Noise()
     case = table_iv_case()
     truth, clean = case.truth, case.record
     problem = WholeRecordProblem(clean, Model(three_element(1.0, 1.0, 1.0)), noise.force_std(clean), noise.markers)

@@ -18,8 +18,9 @@ and drop nothing but noise. ``nodes=(1, 2, 3)`` gives the paper's P2-P4.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -137,7 +138,7 @@ def identify_paper(
         if settled < since:
             since = settled
             params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
-    labels = ["P%d" % (i + 1) for i in nodes]
+    labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
     if mesh.geometry == "plane_fe":
         eqs.append("IV.B least squares over " + ",".join(labels))

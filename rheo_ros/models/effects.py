@@ -15,9 +15,10 @@ time) are parameters to fit, not a list to enumerate.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from importlib.metadata import entry_points
-from typing import ClassVar, Mapping, TypeVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 

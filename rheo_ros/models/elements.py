@@ -11,8 +11,8 @@ modulus written as ``den(d/dt) stress = num(d/dt) strain``.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Iterable, Mapping
 
 import numpy as np
 

@@ -144,9 +144,9 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
             eps_s = eps + rate * every
             stress[mask] = xs[: taus.size] @ ss.C + ss.D * rate
         else:
-            Af, x0, gain = _free_dynamics(ss, x)
+            Af, gain, jump = _free_dynamics(ss, x)
+            x0, eps0 = x + ss.B * jump, eps + jump
             E, P = _propagators(Af, every)
-            eps0 = eps + float(ss.C @ (x0 - x) / (ss.C @ ss.B)) if ss.D == 0.0 else eps
             xs = E @ x0
             eps_s = eps0 + (P @ x0) @ gain
             stress[mask] = 0.0
@@ -156,20 +156,20 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
     return Response(t, stress, strain)
 
 
-def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Stress-free motion: ``x' = Af x``, ``strain' = gain . x``, from state ``x0``.
+def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Stress-free motion from state ``x``: ``(Af, gain, jump)`` with ``x' = Af x``,
+    ``strain' = gain . x`` after an instantaneous strain ``jump``.
 
     With an instantaneous viscous path (``D != 0``) the strain rate adjusts at once
-    to keep the stress at zero: ``rate = -C x / D``. Without one (a spring at the
-    front, ``D = 0``) the strain jumps back elastically so that ``C x0 = 0``, then
-    the rate keeps ``d(stress)/dt = C A x + C B rate = 0``.
+    to keep the stress at zero: ``rate = -C x / D``, no jump. Without one (a spring
+    at the front, ``D = 0``) the strain jumps back elastically until ``C x = 0``,
+    then the rate keeps ``d(stress)/dt = C A x + C B rate = 0``.
     """
     if ss.D != 0.0:
         gain = -ss.C / ss.D
-        return ss.A + np.outer(ss.B, gain), x, gain
+        return ss.A + np.outer(ss.B, gain), gain, 0.0
     cb = float(ss.C @ ss.B)
     if cb == 0.0:
         raise ValueError("element cannot recover freely (no internal state)")
-    x0 = x - ss.B * float(ss.C @ x) / cb
     gain = -(ss.C @ ss.A) / cb
-    return ss.A + np.outer(ss.B, gain), x0, gain
+    return ss.A + np.outer(ss.B, gain), gain, -float(ss.C @ x) / cb
