@@ -25,18 +25,20 @@ class Phase:
 @dataclass(frozen=True)
 class StageProfile:
     """Stage motion (contract defaults): push ``depth`` (m) at ``velocity`` (m/s), hold
-    ``keep_time`` (s), then let go; ``start_delay`` before contact and ``release_time``
-    recorded after release (s). Release is immediate: the stage leaves the specimen."""
+    ``keep_time`` (s), then retract at ``retract_speed`` (m/s; ``inf``: the stage
+    leaves at once, as in the paper); ``start_delay`` before contact and
+    ``release_time`` recorded after release (s)."""
 
     depth: float = 0.010
     velocity: float = 0.0005
     keep_time: float = 48.0
     start_delay: float = 1.0
     release_time: float = 100.0
+    retract_speed: float = np.inf
 
     def __post_init__(self) -> None:
-        if self.depth <= 0 or self.velocity <= 0 or self.keep_time < 0 or self.release_time < 0:
-            raise ValueError("stage profile: depth and velocity must be positive, times non-negative")
+        if min(self.depth, self.velocity, self.retract_speed) <= 0 or min(self.keep_time, self.release_time) < 0:
+            raise ValueError("stage profile: depth and speeds must be positive, times non-negative")
 
     @classmethod
     def from_times(cls, depth: float, pull_time: float, keep_time: float, **kw: float) -> StageProfile:
@@ -71,10 +73,26 @@ class StageProfile:
         )
 
     def depth_at(self, t: np.ndarray) -> np.ndarray:
-        """Commanded stage depth (m, positive into the specimen; 0 once released)."""
+        """Commanded stage depth (m, positive into the specimen; back to 0 on release)."""
         t = np.asarray(t, dtype=float)
         d = np.clip((t - self.t_pull_start) * self.velocity, 0.0, self.depth)
-        return np.where(t >= self.t_keep_end, 0.0, d)
+        with np.errstate(invalid="ignore"):
+            back = np.maximum(self.depth - self.retract_speed * (t - self.t_keep_end), 0.0)
+        return np.where(t >= self.t_keep_end, np.nan_to_num(back), d)
+
+    def velocity_at(self, t: np.ndarray) -> np.ndarray:
+        """Commanded stage velocity (m/s, positive pushing)."""
+        t = np.asarray(t, dtype=float)
+        v = np.where((t >= self.t_pull_start) & (t < self.t_pull_end), self.velocity, 0.0)
+        retracting = (t >= self.t_keep_end) & (t < self.t_keep_end + self.depth / self.retract_speed)
+        return np.where(retracting, -self.retract_speed, v)
+
+    def knots(self) -> list[tuple[float, float]]:
+        """Breakpoints ``(t, depth)`` of the piecewise-linear stage motion; an instant
+        release appears as two knots at the same time."""
+        t_back = self.t_keep_end + self.depth / self.retract_speed
+        return [(self.t_pull_start, 0.0), (self.t_pull_end, self.depth), (self.t_keep_end, self.depth),
+                (t_back, 0.0)]
 
     def program(self) -> Program:
         """The top-face displacement program (m) for the exact model response."""

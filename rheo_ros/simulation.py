@@ -32,11 +32,12 @@ def simulate_record(
     t = np.unique(np.concatenate(grids))
     result = fe.simulate(profile, t)
     pick = [np.searchsorted(t, g) for g in grids]
-    force_t = grids[1]
+    force_t, i = grids[1], pick[1]
+    stress_force = result.bottom_force[i] * model.stress_scale(result.strain[i])[:, None]
     return Record(
         mesh=mesh,
         stage_t=grids[0], stage_depth=result.stage_depth[pick[0]],
-        force_t=force_t, force=model.measured_force(force_t, result.bottom_force[pick[1]]),
+        force_t=force_t, force=model.measured_force(force_t, stress_force, result.contact[i]),
         marker_t=grids[2], markers=mesh.nodes[None] + result.displacement[pick[2]],
         source=source,
     )

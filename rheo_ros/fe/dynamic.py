@@ -9,9 +9,15 @@ stiffness per unit E: any element of ``rheo_ros.models`` drives the mesh.
 
 Eq. 1 keeps the instantaneous viscous term inside ``Omega``, which makes the system
 implicit in the accelerations; we use the explicit state-space realisation of the
-same operator (``Omega = C x + D d/dt(K u)``). Within a phase the model is linear
-time-invariant with a linear drive, so it is propagated exactly by matrix
-exponentials (stiffness from small masses costs nothing).
+same operator (``Omega = C x + D d/dt(K u)``). Between two stage samples the stage
+moves linearly and the contact does not change, so the model is linear
+time-invariant with a linear drive and is propagated exactly by a matrix
+exponential (stiffness from small masses costs nothing).
+
+Contact with the stage is one-sided: the top nodes follow the stage (and stick to
+it in x) while it presses; when the stage retracts faster than the specimen
+recovers, the pressing force reaches zero, the specimen lets go at that instant
+(found by bisection inside the step) and recovers freely.
 """
 
 from __future__ import annotations
@@ -33,20 +39,23 @@ Contact = Literal["held", "free"]
 @dataclass(frozen=True)
 class FEResult:
     """Sampled simulation: ``displacement`` (T, N, 2) in m, ``bottom_force`` (T, n_bottom)
-    in N (y reaction of each bottom node, positive when pressing the sensor)."""
+    in N (y reaction of each bottom node, positive when pressing the sensor), stage
+    ``contact`` (T,) and nominal compressive ``strain`` (T,) = top sinking / height."""
 
     t: np.ndarray
     stage_depth: np.ndarray
     displacement: np.ndarray
     bottom_force: np.ndarray
+    contact: np.ndarray
+    strain: np.ndarray
 
 
 class DynamicFE:
-    """Dynamic FE model of the specimen pushed by the stage.
+    """Dynamic FE model of the specimen pushed by the stage, stepped by stage samples.
 
     Args:
         mesh: specimen mesh (bottom nodes held; top nodes follow the stage in y and
-            stick to it in x while in contact, free after release).
+            stick to it in x while in contact).
         rheology: the material's element (same operator on every dof).
         gamma: Poisson ratio (``plane_fe`` only).
         density: kg/m^3, lumped at the nodes.
@@ -64,23 +73,24 @@ class DynamicFE:
         n, nq = mesh.n_dofs, self.ss.A.shape[0]
         self.n, self.nq = n, nq
         self.size = 2 * n + nq * n + 2
-        # Index blocks of the state z = [u, v, x_1..x_nq, g, g'].
+        # Index blocks of the state z = [u, v, x_1..x_nq, g, g'], g = top target (m, y up).
         self.iu, self.iv = slice(0, n), slice(n, 2 * n)
         self.ix = [slice(2 * n + k * n, 2 * n + (k + 1) * n) for k in range(nq)]
         self.ig, self.igd = 2 * n + nq * n, 2 * n + nq * n + 1
+        self._bottom_y, self._top_y = mesh.y_dofs(mesh.bottom), mesh.y_dofs(mesh.top)
         self._modes: dict[Contact, tuple[np.ndarray, np.ndarray]] = {}
         self._phi: dict[tuple[Contact, float], np.ndarray] = {}
+        self.reset()
 
-    def _force_rows(self) -> np.ndarray:
-        """Rows mapping z to the rheological nodal force F (n x size)."""
-        F = np.zeros((self.n, self.size))
-        F[:, self.iv] = self.ss.D * self.K
-        for k, sl in enumerate(self.ix):
-            F[:, sl] = self.ss.C[k] * np.eye(self.n)
-        return F
+    def reset(self, t: float = 0.0) -> None:
+        """Unloaded specimen, stage touching it at depth 0, at time ``t``."""
+        self.z = np.zeros(self.size)
+        self.t, self.depth, self.contact = t, 0.0, "held"
+
+    # -- the linear system of each contact state ----------------------------------------
 
     def _mode(self, contact: Contact) -> tuple[np.ndarray, np.ndarray]:
-        """System matrix and bottom-force output rows for a contact state."""
+        """System matrix and reaction rows (n x size: support force on each held dof)."""
         if contact in self._modes:
             return self._modes[contact]
         mesh, n, w = self.mesh, self.n, self.omega
@@ -89,8 +99,11 @@ class DynamicFE:
         target = np.zeros(n)  # multiplier of g(t) in each held dof's target
         if contact == "held":
             held[mesh.node_dofs(mesh.top)] = True
-            target[mesh.y_dofs(mesh.top)] = 1.0
-        F = self._force_rows()
+            target[self._top_y] = 1.0
+        F = np.zeros((n, self.size))  # rheological nodal force
+        F[:, self.iv] = self.ss.D * self.K
+        for k, sl in enumerate(self.ix):
+            F[:, sl] = self.ss.C[k] * np.eye(n)
         A = np.zeros((self.size, self.size))
         A[self.iu, self.iv] = np.eye(n)
         acc = np.zeros((n, self.size))
@@ -108,46 +121,98 @@ class DynamicFE:
                 A[sl, sj] += self.ss.A[k, j] * np.eye(n)
             A[sl] += self.ss.B[k] * Kv
         A[self.ig, self.igd] = 1.0
-        # Reaction of a held dof: lambda = M v' + F (what the support exerts on the node).
-        reaction = self.mass[:, None] * acc + F
-        out = reaction[mesh.y_dofs(mesh.bottom)]
-        self._modes[contact] = (A, out)
-        return A, out
+        reaction = self.mass[:, None] * acc + F  # lambda = M v' + F
+        self._modes[contact] = (A, reaction)
+        return A, reaction
 
-    def _step(self, contact: Contact, dt: float) -> np.ndarray:
+    def _propagator(self, contact: Contact, dt: float) -> np.ndarray:
         key = (contact, round(dt, 12))
         if key not in self._phi:
             self._phi[key] = expm(self._mode(contact)[0] * dt)
         return self._phi[key]
 
+    # -- outputs of the current state -----------------------------------------------------
+
+    def bottom_force(self) -> np.ndarray:
+        return self._mode(self.contact)[1][self._bottom_y] @ self.z
+
+    def displacement(self) -> np.ndarray:
+        return self.mesh.displacement_field(self.z[self.iu])
+
+    def strain(self) -> float:
+        """Nominal compressive strain: mean sinking of the top nodes / height."""
+        return float(-self.z[self._top_y].mean() / self.mesh.height)
+
+    def _pressing(self, z: np.ndarray) -> float:
+        """Force (N) the stage exerts down on the specimen in contact; < 0 means pulling."""
+        return float(-self._mode("held")[1][self._top_y].sum(axis=0) @ z)
+
+    # -- stepping ----------------------------------------------------------------------
+
+    def advance(self, t: float, depth: float) -> None:
+        """Move on to time ``t`` (s) while the stage goes linearly to ``depth`` (m).
+
+        A zero-length step with a smaller depth is an instant retraction: the
+        specimen cannot follow, contact ends there.
+        """
+        dt = t - self.t
+        if dt < 0:
+            raise ValueError(f"time went back: {self.t} -> {t}")
+        d0, self.t, self.depth = self.depth, t, depth
+        if dt == 0.0:
+            if depth < d0 and self.contact == "held":
+                self.contact = "free"
+            return
+        if self.contact == "held":
+            self.z[self.ig], self.z[self.igd] = -d0, -(depth - d0) / dt
+            z_end = self._propagator("held", dt) @ self.z
+            if depth < d0 and self._pressing(z_end) < 0.0:
+                tau = self._release_time(dt)
+                self.z = expm(self._mode("held")[0] * tau) @ self.z
+                self.contact = "free"
+                self.z = expm(self._mode("free")[0] * (dt - tau)) @ self.z
+            else:
+                self.z = z_end
+        else:
+            self.z = self._propagator("free", dt) @ self.z
+            if -self.z[self._top_y].mean() < depth:  # the stage reaches the specimen again
+                self.contact = "held"
+
+    def _release_time(self, dt: float) -> float:
+        """Instant within the step at which the stage stops pressing (bisection)."""
+        A = self._mode("held")[0]
+        lo, hi = 0.0, dt
+        if self._pressing(self.z) <= 0.0:
+            return 0.0
+        for _ in range(40):
+            mid = (lo + hi) / 2
+            if self._pressing(expm(A * mid) @ self.z) < 0.0:
+                hi = mid
+            else:
+                lo = mid
+            if hi - lo < 1e-9 * dt:
+                break
+        return lo
+
     def simulate(self, profile: StageProfile, t: np.ndarray) -> FEResult:
-        """Run the experiment and sample it at the sorted times ``t`` (s)."""
+        """Run the stage ``profile`` from rest and sample at the sorted times ``t`` (s)."""
         t = np.asarray(t, dtype=float)
-        v, d = profile.velocity, profile.depth
-        # (start, end, contact, g at start, g') with g the top target displacement (m, y up).
-        segments = [
-            (-np.inf, profile.t_pull_start, "held", 0.0, 0.0),
-            (profile.t_pull_start, profile.t_pull_end, "held", 0.0, -v),
-            (profile.t_pull_end, profile.t_keep_end, "held", -d, 0.0),
-            (profile.t_keep_end, np.inf, "free", 0.0, 0.0),
-        ]
-        z = np.zeros(self.size)
-        states = np.zeros((t.size, self.size))
-        forces = np.zeros((t.size, self.mesh.cols))
-        now = min(t[0], profile.t_pull_start) if t.size else 0.0
-        for start, end, contact, g0, gdot in segments:
-            if end <= now:
-                continue
-            z[self.ig], z[self.igd] = (g0, gdot) if contact == "held" else (0.0, 0.0)
-            _, out = self._mode(contact)
-            idx = np.flatnonzero((t >= max(start, now)) & (t < end))
-            for i in idx:
-                if t[i] > now:
-                    z = self._step(contact, t[i] - now) @ z
-                    now = t[i]
-                states[i], forces[i] = z, out @ z
-            if np.isfinite(end) and end > now:
-                z = self._step(contact, end - now) @ z
-                now = end
-        disp = self.mesh.displacement_field(states[:, self.iu])
-        return FEResult(t, profile.depth_at(t), disp, forces)
+        knots = profile.knots()
+        grid = np.union1d(t, [k[0] for k in knots if np.isfinite(k[0])])
+        self.reset(min(grid[0], 0.0))
+        out = {name: [] for name in ("force", "disp", "contact", "strain")}
+        want = set(np.searchsorted(grid, t).tolist())
+        jump = profile.t_keep_end if not np.isfinite(profile.retract_speed) else None
+        for i, ti in enumerate(grid):
+            if jump is not None and ti == jump:
+                self.advance(ti, profile.depth)
+            self.advance(ti, float(profile.depth_at(ti)))
+            if i in want:
+                out["force"].append(self.bottom_force())
+                out["disp"].append(self.displacement())
+                out["contact"].append(self.contact == "held")
+                out["strain"].append(self.strain())
+        return FEResult(
+            t, profile.depth_at(t), np.array(out["disp"]), np.array(out["force"]),
+            np.array(out["contact"]), np.array(out["strain"]),
+        )

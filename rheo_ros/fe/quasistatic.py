@@ -78,6 +78,9 @@ class QuasiStaticFE:
         stress, depth = np.empty_like(t), np.empty_like(t)
         stress[order], depth[order] = r.stress, r.strain
         nf = len(force_t)
-        force = model.measured_force(force_t, np.outer(stress[:nf], shape.bottom_force))
+        strain = depth[:nf] / self.mesh.height
+        contact = (force_t >= profile.t_pull_start) & (force_t < profile.t_keep_end)
+        force = np.outer(stress[:nf] * model.stress_scale(strain), shape.bottom_force)
+        force = model.measured_force(force_t, force, contact)
         disp = depth[nf:, None, None] * shape.displacement[None]
         return Prediction(force, disp)

@@ -6,7 +6,10 @@ effect changes one stage of the chain material -> mechanics -> measurement throu
 a hook, so the base elements and the FE model never learn about it:
 
 - ``material(element)``: a structural change of the rheology (an extra arm);
-- ``measured_force(t, force)``: a change the sensor makes to the nodal forces.
+- ``stress_scale(strain)``: a factor on the specimen's stress that depends on its
+  current nominal strain (a nonlinear elastic response);
+- ``measured_force(t, force, contact)``: what reaches the sensor besides the
+  specimen's stress (adhesion, drift).
 
 A user registers an effect from their own package with ``@register_effect`` or
 through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
@@ -41,8 +44,13 @@ class Effect:
     def material(self, element: Element) -> Element:
         return element
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
-        """``force``: (T, nodes) in N at times ``t`` (s) -> what the sensor reports."""
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        """Factor on the stress at nominal compressive strain ``strain`` (depth / height)."""
+        return np.ones_like(strain)
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """``force``: (T, nodes) in N at times ``t`` (s), ``contact``: (T,) stage touching
+        the specimen -> the nodal forces the sensor feels."""
         return force
 
 
@@ -96,8 +104,47 @@ class SensorDrift(Effect):
     offset: float
     rate: float
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
         return force + (self.offset + self.rate * np.asarray(t))[:, None]
+
+
+@register_effect
+@dataclass(frozen=True)
+class Adhesion(Effect):
+    """The specimen sticks to the sensor after release: from the moment the stage
+    loses contact, each node keeps ``fraction`` of its force then, fading over
+    ``time`` (s). Shows in the release phase: the force does not return to zero."""
+
+    id: ClassVar[str] = "adhesion"
+    fraction: float
+    time: float
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        contact = np.asarray(contact, bool)
+        lost = np.flatnonzero(contact[:-1] & ~contact[1:])
+        if lost.size == 0:
+            return force
+        k = lost[0] + 1
+        t = np.asarray(t)
+        stuck = self.fraction * force[k - 1] * np.exp(-(t[k:] - t[k])[:, None] / self.time)
+        out = force.copy()
+        out[k:] += stuck
+        return out
+
+
+@register_effect
+@dataclass(frozen=True)
+class StrainStiffening(Effect):
+    """Stiffness grows with strain: stress x (1 + ``coefficient`` x nominal strain).
+
+    Shows in the pull phase: the force curves up with depth.
+    """
+
+    id: ClassVar[str] = "strain_stiffening"
+    coefficient: float
+
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        return 1.0 + self.coefficient * np.maximum(strain, 0.0)
 
 
 @dataclass(frozen=True)
@@ -118,9 +165,15 @@ class Model:
             element = effect.material(element)
         return element
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray) -> np.ndarray:
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        scale = np.ones_like(np.asarray(strain, dtype=float))
         for effect in self.effects:
-            force = effect.measured_force(t, force)
+            scale = scale * effect.stress_scale(strain)
+        return scale
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        for effect in self.effects:
+            force = effect.measured_force(t, force, contact)
         return force
 
     @property

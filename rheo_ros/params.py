@@ -1,0 +1,153 @@
+"""The parameters file: a standard ROS 2 parameters file (``/**: ros__parameters:``).
+
+Nodes read it with ``--ros-args --params-file FILE``, the CLI with ``--params-file
+FILE``; a bag written by the package carries its text in the metadata. Nested keys
+are the dotted ROS parameter names (``specimen.width``). ``config/rheo_ros.yaml``
+documents every name; ``DEFAULTS`` below is the same table in code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.mesh import Mesh
+from rheo_ros.models.effects import Effect, Model, effect_class
+from rheo_ros.models.elements import three_element
+from rheo_ros.sensors import MarkerCamera, TactileArray
+
+DEFAULTS: dict[str, Any] = {
+    "geometry": "plane_fe",
+    "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
+    "tactile.rows": 6, "tactile.cols": 32, "tactile.noise": 100.0, "tactile.resolution": 10.0,
+    "markers.rows": 5, "markers.cols": 5, "markers.noise": 2.0e-5,
+    "stage.depth": 0.010, "stage.velocity": 0.0005, "stage.keep_time": 48.0, "stage.start_delay": 1.0,
+    "stage.retract_speed": 0.02, "stage.release_time": 100.0,
+    "rates.stage": 100.0, "rates.tactile": 50.0, "rates.markers": 10.0,
+    "material.E": 3.33e4, "material.c1": 1.69e5, "material.c2": 3.11e7, "material.gamma": 0.332,
+    "material.density": 1500.0,
+    "simulator.omega": 1000.0, "simulator.seed": 0, "simulator.effects": [""],
+    "effects.relaxation_branch.stiffness": 3.0e4, "effects.relaxation_branch.viscosity": 1.5e5,
+    "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
+    "effects.strain_stiffening.coefficient": 4.0,
+    "effects.sensor_drift.offset": 0.02, "effects.sensor_drift.rate": 2.0e-4,
+}
+
+
+class ParamsError(ValueError):
+    """A parameters file cannot be used; the message names the file and the parameter."""
+
+
+def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
+    """Flat parameters (defaults filled in) from a ROS 2 parameters file's text."""
+    try:
+        doc = yaml.safe_load(text) or {}
+    except yaml.YAMLError as exc:
+        raise ParamsError(f"{source}: not YAML: {str(exc).splitlines()[0]}") from None
+    nodes = [v for v in doc.values() if isinstance(v, Mapping) and "ros__parameters" in v] if isinstance(doc, Mapping) else []
+    if not nodes:
+        raise ParamsError(f"{source}: no '<node>: ros__parameters:' section")
+    given = flatten(nodes[0]["ros__parameters"])
+    unknown = sorted(k for k in given if k not in DEFAULTS and not k.startswith("effects."))
+    if unknown:
+        raise ParamsError(f"{source}: unknown parameter(s): {', '.join(unknown)}")
+    params = {**DEFAULTS, **given}
+    for key, default in DEFAULTS.items():
+        if isinstance(default, float) and isinstance(params[key], int):
+            params[key] = float(params[key])
+        if type(params[key]) is not type(default):
+            raise ParamsError(f"{source}: {key}: expected {type(default).__name__}, got {params[key]!r}")
+    return params
+
+
+def load_params(path: str | Path | None) -> dict[str, Any]:
+    """Parameters from a file, or the defaults when ``path`` is None."""
+    if path is None:
+        return dict(DEFAULTS)
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ParamsError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_params(text, str(path))
+
+
+def params_yaml(params: Mapping[str, Any]) -> str:
+    """A parameters file's text for flat ``params`` (stored in the bags we write)."""
+    tree: dict[str, Any] = {}
+    for key, value in params.items():
+        node = tree
+        *parents, leaf = key.split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return yaml.safe_dump({"/**": {"ros__parameters": tree}}, sort_keys=False)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Everything a simulation or an analysis needs, built from flat parameters."""
+
+    params: dict[str, Any]
+
+    @property
+    def mesh(self) -> Mesh:
+        p = self.params
+        return Mesh.build(p["geometry"], p["specimen.width"], p["specimen.height"], p["specimen.thickness"],
+                          rows=p["markers.rows"], cols=p["markers.cols"])
+
+    @property
+    def tactile(self) -> TactileArray:
+        p = self.params
+        return TactileArray(rows=p["tactile.rows"], cols=p["tactile.cols"], width=p["specimen.width"],
+                            depth=p["specimen.thickness"], nodes=self.mesh.cols,
+                            noise=p["tactile.noise"], resolution=p["tactile.resolution"])
+
+    @property
+    def camera(self) -> MarkerCamera:
+        return MarkerCamera(noise=self.params["markers.noise"])
+
+    @property
+    def profile(self) -> StageProfile:
+        p = self.params
+        return StageProfile(depth=p["stage.depth"], velocity=p["stage.velocity"], keep_time=p["stage.keep_time"],
+                            start_delay=p["stage.start_delay"], release_time=p["stage.release_time"],
+                            retract_speed=p["stage.retract_speed"])
+
+    @property
+    def effect_ids(self) -> tuple[str, ...]:
+        return tuple(e for e in self.params["simulator.effects"] if e)
+
+    def effects(self) -> tuple[Effect, ...]:
+        out = []
+        for effect_id in self.effect_ids:
+            cls = effect_class(effect_id)
+            prefix = f"effects.{effect_id}."
+            values = {k[len(prefix):]: v for k, v in self.params.items() if k.startswith(prefix)}
+            try:
+                out.append(cls(**values))
+            except TypeError as exc:
+                raise ParamsError(f"effects.{effect_id}: {exc}") from None
+        return tuple(out)
+
+    def model(self) -> Model:
+        p = self.params
+        return Model(three_element(p["material.E"], p["material.c1"], p["material.c2"]), self.effects())
+
+    @property
+    def gamma(self) -> float | None:
+        return self.params["material.gamma"] if self.params["geometry"] == "plane_fe" else None

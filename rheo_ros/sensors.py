@@ -1,0 +1,82 @@
+"""Sensor models: the tactile pressure array under the specimen and the marker camera.
+
+The tactile array (contract) has ``rows`` cells along z and ``cols`` along x. The
+bottom face is split into one segment per bottom FE node: the columns whose centres
+are nearest that node (P1 and P5 own half as many as the inner nodes, as in the
+paper's Fig. 6). A nodal force is spread evenly over its segment's cells, so the
+force read back from a segment is that node's force.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TactileArray:
+    """Cell grid ``rows`` (z) x ``cols`` (x) under a face ``width`` (x) by ``depth`` (z), in m.
+
+    ``noise`` (Pa): Gaussian per cell; ``resolution`` (Pa per count, 0 = none): ADC
+    quantisation. The sensor reads pressure only: tension reads as zero.
+    """
+
+    rows: int = 6
+    cols: int = 32
+    width: float = 0.080
+    depth: float = 0.0125
+    nodes: int = 5
+    noise: float = 100.0
+    resolution: float = 10.0
+
+    @cached_property
+    def segment(self) -> np.ndarray:
+        """Bottom node (0-based) owning each column."""
+        centres = (np.arange(self.cols) + 0.5) * self.width / self.cols
+        node_x = np.linspace(0.0, self.width, self.nodes)
+        return np.argmin(np.abs(centres[:, None] - node_x[None]), axis=1)
+
+    @property
+    def cell_area(self) -> float:
+        return (self.width / self.cols) * (self.depth / self.rows)
+
+    @cached_property
+    def _spread(self) -> np.ndarray:
+        """(nodes, cols): pressure per column (Pa) per newton on each node."""
+        counts = np.bincount(self.segment, minlength=self.nodes) * self.rows
+        S = np.zeros((self.nodes, self.cols))
+        S[self.segment, np.arange(self.cols)] = 1.0 / (counts[self.segment] * self.cell_area)
+        return S
+
+    def pressure(self, force: np.ndarray) -> np.ndarray:
+        """Noise-free pressure images (T, rows, cols) in Pa for nodal forces (T, nodes) in N."""
+        cols = np.asarray(force) @ self._spread
+        return np.repeat(cols[:, None, :], self.rows, axis=1)
+
+    def read(self, pressure: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """What the sensor reports: noise, no tension, quantisation; float32 Pa."""
+        p = pressure + rng.standard_normal(pressure.shape) * self.noise
+        p = np.maximum(p, 0.0)
+        if self.resolution > 0:
+            p = np.round(p / self.resolution) * self.resolution
+        return p.astype(np.float32)
+
+    def nodal_forces(self, images: np.ndarray) -> np.ndarray:
+        """Segment sums (T, nodes) in N from pressure images (T, rows, cols) in Pa."""
+        per_col = np.asarray(images, dtype=float).sum(axis=1) * self.cell_area
+        out = np.zeros((per_col.shape[0], self.nodes))
+        for node in range(self.nodes):
+            out[:, node] = per_col[:, self.segment == node].sum(axis=1)
+        return out
+
+
+@dataclass(frozen=True)
+class MarkerCamera:
+    """Marker tracking with Gaussian noise ``noise`` (m) per coordinate."""
+
+    noise: float = 2.0e-5
+
+    def observe(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return positions + rng.standard_normal(positions.shape) * self.noise
