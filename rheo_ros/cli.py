@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from rheo_ros.params import ParamsError
 from rheo_ros.record import RecordError
 
 
@@ -35,6 +36,33 @@ def _bench_noise(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_simulator(args: argparse.Namespace) -> int:
+    from rheo_ros.bench import simulator
+
+    result = simulator.run()
+    print(simulator.format_table(result))
+    _write_json(args.json, result)
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from rheo_ros.io.bag import simulate_to_bag
+    from rheo_ros.models.effects import effect_class
+    from rheo_ros.params import Setup, load_params
+
+    params = load_params(args.params_file)
+    if args.effect is not None:
+        for effect_id in args.effect:
+            effect_class(effect_id)  # unknown ids fail here, with the catalogue
+        params["simulator.effects"] = list(args.effect) or [""]
+    seed = params["simulator.seed"] if args.seed is None else args.seed
+    if Path(args.out).exists():
+        raise OSError(f"{args.out} exists already, not overwriting")
+    counts = simulate_to_bag(Setup(params), seed, args.out)
+    print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rheo", description="Identify rheological parameters (E, c1, c2, Poisson ratio).")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -47,6 +75,17 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     n.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     n.set_defaults(func=_bench_noise)
+    b = bench.add_parser("simulator", help="simulator speed as a multiple of real time (bag written directly)")
+    b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    b.set_defaults(func=_bench_simulator)
+    s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
+    s.add_argument("--effect", action="append", metavar="ID",
+                   help="hidden effect to add (repeatable): relaxation_branch, adhesion, strain_stiffening, "
+                        "sensor_drift; overrides simulator.effects")
+    s.add_argument("--seed", type=int, help="noise seed (default: simulator.seed)")
+    s.add_argument("--params-file", metavar="FILE", help="ROS 2 parameters file (default: config/rheo_ros.yaml values)")
+    s.add_argument("--out", required=True, metavar="DIR", help="bag directory to create")
+    s.set_defaults(func=_simulate)
     return parser
 
 
@@ -54,7 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (RecordError, OSError) as exc:
+    except (RecordError, ParamsError, KeyError, OSError) as exc:
         print(f"rheo: error: {exc}", file=sys.stderr)
         return 2
 

@@ -71,8 +71,9 @@ def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") ->
 
     Pull is the constant-velocity ramp: a line fitted to the samples between 5 % and
     95 % of the maximum depth gives its velocity and, where it meets 0 and the
-    maximum, its start and end to a fraction of a sample. Release starts at the
-    first sample after the hold that has left the maximum depth.
+    maximum, its start and end to a fraction of a sample. Release starts where the
+    stage leaves the maximum depth: extrapolated back along the retraction from the
+    first two samples that have left it (an instant release: the first one).
     """
     d_max = float(np.max(depth))
     if d_max <= 0:
@@ -88,7 +89,11 @@ def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") ->
     left = np.flatnonzero((t > t[at_max[0]]) & (depth < d_max - tol))
     if left.size == 0:
         raise RecordError(f"{source}: stage: no release (depth held to the end)")
-    t_keep_end = float(t[left[0]])
+    i = left[0]
+    t_keep_end = float(t[i])
+    if i + 1 < t.size and 0 < depth[i + 1] < depth[i] and t[i] - t[i - 1] > 0:
+        rate = (depth[i] - depth[i + 1]) / (t[i + 1] - t[i])
+        t_keep_end = max(float(t[i] - (d_max - depth[i]) / rate), float(t[i - 1]))
     return StageProfile(
         depth=d_max, velocity=float(velocity), keep_time=t_keep_end - t_pull_end,
         start_delay=float(t_start), release_time=float(t[-1] - t_keep_end),

@@ -163,7 +163,7 @@ def test_relaxation_branch_adds_a_second_exponential_in_keep():
 def test_sensor_drift_changes_only_the_measurement():
     model = Model(three_element(E, C1, C2), (SensorDrift(offset=0.1, rate=0.01),))
     t = np.array([0.0, 10.0])
-    out = model.measured_force(t, np.zeros((2, 3)), np.array([False, False]))
+    out = model.measured_force(t, np.zeros((2, 3)), None)
     np.testing.assert_allclose(out, [[0.1] * 3, [0.2] * 3], rtol=1e-12)
     assert model.rheology() == model.base
 

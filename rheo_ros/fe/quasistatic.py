@@ -19,7 +19,7 @@ import numpy as np
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
-from rheo_ros.models.effects import Model
+from rheo_ros.models.effects import Model, Release
 from rheo_ros.models.response import respond
 
 
@@ -72,15 +72,16 @@ class QuasiStaticFE:
         force_t: np.ndarray, marker_t: np.ndarray,
     ) -> Prediction:
         shape = self.shape(gamma)
-        t = np.concatenate([force_t, marker_t])
+        # The stage lets go at the end of keep: the force just before it feeds adhesion.
+        t_release = profile.t_keep_end
+        t = np.concatenate([force_t, marker_t, [np.nextafter(t_release, -np.inf)]])
         order = np.argsort(t, kind="stable")
         r = respond(model.rheology(), profile.program(), t[order])
         stress, depth = np.empty_like(t), np.empty_like(t)
         stress[order], depth[order] = r.stress, r.strain
-        nf = len(force_t)
-        strain = depth[:nf] / self.mesh.height
-        contact = (force_t >= profile.t_pull_start) & (force_t < profile.t_keep_end)
-        force = np.outer(stress[:nf] * model.stress_scale(strain), shape.bottom_force)
-        force = model.measured_force(force_t, force, contact)
-        disp = depth[nf:, None, None] * shape.displacement[None]
+        nf, nm = len(force_t), len(marker_t)
+        scaled = stress * model.stress_scale(depth / self.mesh.height)
+        release = Release(t_release, scaled[-1] * shape.bottom_force)
+        force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
+        disp = depth[nf : nf + nm, None, None] * shape.displacement[None]
         return Prediction(force, disp)

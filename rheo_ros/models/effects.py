@@ -8,8 +8,9 @@ a hook, so the base elements and the FE model never learn about it:
 - ``material(element)``: a structural change of the rheology (an extra arm);
 - ``stress_scale(strain)``: a factor on the specimen's stress that depends on its
   current nominal strain (a nonlinear elastic response);
-- ``measured_force(t, force, contact)``: what reaches the sensor besides the
-  specimen's stress (adhesion, drift).
+- ``measured_force(t, force, release)``: what reaches the sensor besides the
+  specimen's stress (adhesion, drift), given when the stage let go (``Release``).
+  It needs no history, so a streaming simulator calls it sample by sample.
 
 A user registers an effect from their own package with ``@register_effect`` or
 through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
@@ -26,6 +27,21 @@ from typing import ClassVar, TypeVar
 import numpy as np
 
 from rheo_ros.models.elements import Element, Parallel, maxwell
+
+
+@dataclass(frozen=True)
+class Release:
+    """The moment the stage lost contact: time (s) and each node's force then (N)."""
+
+    t: float
+    force: np.ndarray
+
+    @classmethod
+    def find(cls, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> Release | None:
+        """First loss of contact in a sampled history (force taken at the last contact sample)."""
+        contact = np.asarray(contact, bool)
+        lost = np.flatnonzero(contact[:-1] & ~contact[1:])
+        return None if lost.size == 0 else cls(float(t[lost[0] + 1]), np.asarray(force[lost[0]]))
 
 
 class Effect:
@@ -48,9 +64,9 @@ class Effect:
         """Factor on the stress at nominal compressive strain ``strain`` (depth / height)."""
         return np.ones_like(strain)
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        """``force``: (T, nodes) in N at times ``t`` (s), ``contact``: (T,) stage touching
-        the specimen -> the nodal forces the sensor feels."""
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        """``force``: (T, nodes) in N at times ``t`` (s) -> the nodal forces the sensor
+        feels; ``release``: when the stage let go (None: not yet)."""
         return force
 
 
@@ -104,7 +120,7 @@ class SensorDrift(Effect):
     offset: float
     rate: float
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         return force + (self.offset + self.rate * np.asarray(t))[:, None]
 
 
@@ -119,17 +135,12 @@ class Adhesion(Effect):
     fraction: float
     time: float
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
-        contact = np.asarray(contact, bool)
-        lost = np.flatnonzero(contact[:-1] & ~contact[1:])
-        if lost.size == 0:
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        if release is None:
             return force
-        k = lost[0] + 1
-        t = np.asarray(t)
-        stuck = self.fraction * force[k - 1] * np.exp(-(t[k:] - t[k])[:, None] / self.time)
-        out = force.copy()
-        out[k:] += stuck
-        return out
+        since = np.asarray(t) - release.t
+        fade = np.where(since >= 0, np.exp(-np.maximum(since, 0.0) / self.time), 0.0)
+        return force + self.fraction * fade[:, None] * release.force[None]
 
 
 @register_effect
@@ -171,9 +182,9 @@ class Model:
             scale = scale * effect.stress_scale(strain)
         return scale
 
-    def measured_force(self, t: np.ndarray, force: np.ndarray, contact: np.ndarray) -> np.ndarray:
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         for effect in self.effects:
-            force = effect.measured_force(t, force, contact)
+            force = effect.measured_force(t, force, release)
         return force
 
     @property

@@ -1,0 +1,42 @@
+"""``rheo bench simulator``: how fast the simulator writes a bag, as a multiple of real time."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from rheo_ros.io.bag import simulate_to_bag
+from rheo_ros.params import Setup, load_params
+from rheo_ros.simulator import simulate_run
+
+
+def run(repeats: int = 3) -> dict[str, Any]:
+    """Best of ``repeats`` wall times for the default run (5 x 5 mesh), physics alone
+    and with the bag written."""
+    setup = Setup(load_params(None))
+    duration = setup.profile.t_end
+    simulate_run(setup, 0)  # warm caches and imports
+    physics, total = [], []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        simulate_run(setup, i)
+        physics.append(time.perf_counter() - t0)
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            counts = simulate_to_bag(setup, i, Path(tmp) / "bag")
+            total.append(time.perf_counter() - t0)
+            size = sum(f.stat().st_size for f in (Path(tmp) / "bag").iterdir())
+    return {
+        "simulated_s": duration, "mesh": f"{setup.mesh.rows} x {setup.mesh.cols}", "messages": counts,
+        "physics_s": min(physics), "bag_s": min(total), "bag_bytes": size,
+        "physics_x_realtime": duration / min(physics), "bag_x_realtime": duration / min(total),
+    }
+
+
+def format_table(r: dict[str, Any]) -> str:
+    return (f"simulator, {r['mesh']} mesh, {r['simulated_s']:.0f} s simulated, "
+            f"{sum(r['messages'].values())} messages, bag {r['bag_bytes'] / 1e6:.2f} MB\n"
+            f"  physics + sensors: {r['physics_s']:.3f} s = {r['physics_x_realtime']:.0f} x real time\n"
+            f"  writing the bag:   {r['bag_s']:.3f} s = {r['bag_x_realtime']:.0f} x real time (target >= 200 x)")

@@ -1,0 +1,1 @@
+"""I/O: message conversion and bags. The only place that knows message layouts."""

@@ -1,0 +1,182 @@
+"""rosbag2 MCAP bags: write a simulated run, read any bag of the contract into a Record.
+
+Layout (contract): a directory with ``metadata.yaml`` and one ``.mcap`` file, CDR,
+the three measurement topics; the run's parameters file as YAML text in the
+metadata's ``custom_data`` under ``rheo_ros.params``. Chunks are zstd-compressed
+inside the MCAP (readable by rosbags and by mcap + mcap-ros2-support).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+import yaml
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.typesys import Stores, get_typestore
+
+from rheo_ros.io.messages import (
+    MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, TOPIC_TYPES, JointStateEncoder, MarkerArrayEncoder, MessageError,
+    MessageTypes, PressureImageEncoder, read_joint_state, read_marker_array, read_pressure_image, stamp_ns,
+)
+from rheo_ros.params import Setup, params_yaml, parse_params
+from rheo_ros.record import Record, RecordError
+
+PARAMS_KEY = "rheo_ros.params"
+
+
+def typestore() -> Any:
+    return get_typestore(Stores.ROS2_KILTED)
+
+
+class BagWriter:
+    """Writes the contract's topics into a new bag directory (``with BagWriter(...) as w``).
+
+    Args:
+        path: the bag directory (must not exist).
+        params: flat parameters, stored as a parameters file in the metadata.
+        topics: topic -> type name; default the three measurement topics.
+    """
+
+    def __init__(self, path: str | Path, params: dict[str, Any] | None = None,
+                 topics: dict[str, str] | None = None, compress: bool = True) -> None:
+        self.path = Path(path)
+        self.store = typestore()
+        self.types = MessageTypes.rosbags(self.store)
+        self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        if compress:
+            self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        if params is not None:
+            self.writer.set_custom_data(PARAMS_KEY, params_yaml(params))
+        self._topics = topics or TOPIC_TYPES
+        self.connections: dict[str, Any] = {}
+
+    def __enter__(self) -> BagWriter:
+        self.writer.open()
+        for topic, msgtype in self._topics.items():
+            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.writer.close()
+
+    def write(self, topic: str, t_ns: int, msg: Any) -> None:
+        conn = self.connections[topic]
+        self.writer.write(conn, t_ns, self.store.serialize_cdr(msg, conn.msgtype))
+
+    def write_raw(self, topic: str, t_ns: int, data: bytes) -> None:
+        self.writer.write(self.connections[topic], t_ns, data)
+
+
+def seconds_to_ns(t: float) -> int:
+    return int(round(t * 1e9))
+
+
+@dataclass(frozen=True)
+class BagContents:
+    """What a bag holds, decoded: the record, the parameters, and the raw frames."""
+
+    record: Record
+    params: dict[str, Any]
+    tactile_t: np.ndarray
+    tactile: np.ndarray   # (T, rows, cols) Pa
+    stage_velocity: np.ndarray
+
+
+def read_params(path: str | Path) -> dict[str, Any] | None:
+    """The parameters stored in a bag's metadata, or None."""
+    meta = Path(path) / "metadata.yaml"
+    try:
+        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+    except (OSError, KeyError, TypeError, yaml.YAMLError):
+        return None
+    text = (info.get("custom_data") or {}).get(PARAMS_KEY)
+    return parse_params(text, f"{path}: metadata custom_data {PARAMS_KEY}") if text else None
+
+
+def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
+    try:
+        with AnyReader([path], default_typestore=typestore()) as reader:
+            conns = [c for c in reader.connections if c.topic in topics]
+            for conn, _, raw in reader.messages(connections=conns):
+                yield conn.topic, reader.deserialize(raw, conn.msgtype)
+    except RecordError:
+        raise
+    except Exception as exc:  # rosbags raises several types for damaged files
+        raise RecordError(f"{path}: cannot read bag: {exc}") from None
+
+
+def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagContents:
+    """Decode a bag of the contract into a ``Record`` (header stamps, nodal forces).
+
+    Args:
+        path: bag directory.
+        params: flat parameters overriding the bag's own (``--params-file``).
+
+    Raises:
+        RecordError: unreadable bag, missing topic, malformed message (the message
+            names the file, topic and field).
+    """
+    path = Path(path)
+    if not (path / "metadata.yaml").is_file():
+        raise RecordError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    params = params or read_params(path)
+    if params is None:
+        raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
+    setup = Setup(params)
+    data: dict[str, list] = {STAGE_TOPIC: [], TACTILE_TOPIC: [], MARKERS_TOPIC: []}
+    decode = {STAGE_TOPIC: read_joint_state, TACTILE_TOPIC: read_pressure_image, MARKERS_TOPIC: read_marker_array}
+    for topic, msg in _messages(path, data):
+        try:
+            data[topic].append((stamp_ns(msg), decode[topic](msg)))
+        except MessageError as exc:
+            raise RecordError(f"{path}: {topic}: {exc}") from None
+    for topic, rows in data.items():
+        if not rows:
+            raise RecordError(f"{path}: {topic}: no messages")
+        rows.sort(key=lambda r: r[0])
+    stage_t = np.array([r[0] for r in data[STAGE_TOPIC]]) * 1e-9
+    stage = np.array([r[1] for r in data[STAGE_TOPIC]])
+    tactile_t = np.array([r[0] for r in data[TACTILE_TOPIC]]) * 1e-9
+    images = np.array([r[1] for r in data[TACTILE_TOPIC]])
+    marker_t = np.array([r[0] for r in data[MARKERS_TOPIC]]) * 1e-9
+    markers = np.array([r[1] for r in data[MARKERS_TOPIC]])
+    mesh, tactile = setup.mesh, setup.tactile
+    if images.shape[1:] != (tactile.rows, tactile.cols):
+        raise RecordError(f"{path}: {TACTILE_TOPIC}: images {images.shape[1:]}, parameters say "
+                          f"{tactile.rows} x {tactile.cols}")
+    if markers.shape[1:] != mesh.nodes.shape:
+        raise RecordError(f"{path}: {MARKERS_TOPIC}: {markers.shape[1]} markers, parameters say {mesh.nodes.shape[0]}")
+    record = Record(mesh=mesh, stage_t=stage_t, stage_depth=stage[:, 0], force_t=tactile_t,
+                    force=tactile.nodal_forces(images), marker_t=marker_t, markers=markers, source=str(path))
+    return BagContents(record, params, tactile_t, images, stage[:, 1])
+
+
+def simulate_to_bag(setup: Setup, seed: int, out: str | Path) -> dict[str, int]:
+    """Simulate a run and write the bag directly (same physics as the nodes, no DDS).
+    Messages are written in stamp order; returns the count per topic."""
+    from rheo_ros.simulator import simulate_run
+
+    run = simulate_run(setup, seed)
+    series = [(STAGE_TOPIC, run.stage_t), (TACTILE_TOPIC, run.tactile_t), (MARKERS_TOPIC, run.marker_t)]
+    stamps = np.concatenate([np.round(t * 1e9).astype(np.int64) for _, t in series])
+    which = np.concatenate([np.full(t.size, k) for k, (_, t) in enumerate(series)])
+    index = np.concatenate([np.arange(t.size) for _, t in series])
+    order = np.lexsort((which, stamps))
+    depth, velocity = run.stage_depth.tolist(), run.stage_velocity.tolist()
+    with BagWriter(out, {**setup.params, "simulator.seed": seed}) as bag:
+        stage, tactile, markers = (JointStateEncoder(bag.types), PressureImageEncoder(bag.types),
+                                   MarkerArrayEncoder(bag.types))
+        make = (
+            lambda ns, i: stage(ns, depth[i], velocity[i]),
+            lambda ns, i: tactile(ns, run.tactile[i]),
+            lambda ns, i: markers(ns, run.markers[i]),
+        )
+        topics = [topic for topic, _ in series]
+        for ns, k, i in zip(stamps[order].tolist(), which[order].tolist(), index[order].tolist()):
+            bag.write(topics[k], ns, make[k](ns, i))
+    return {topic: t.size for topic, t in series}

@@ -1,0 +1,153 @@
+"""Conversion between the contract's messages and arrays, in one place.
+
+The same functions build messages for rosbags (bags, no ROS install) and for rclpy
+(the nodes): both expose the types by name with the same fields. ``MessageTypes``
+hides the two differences: how a type is found and what an array field takes.
+"""
+
+from __future__ import annotations
+
+import array
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+STAGE_TOPIC = "/stage/joint_states"
+TACTILE_TOPIC = "/tactile/pressure"
+MARKERS_TOPIC = "/markers/mesh"
+TOPIC_TYPES = {
+    STAGE_TOPIC: "sensor_msgs/msg/JointState",
+    TACTILE_TOPIC: "sensor_msgs/msg/Image",
+    MARKERS_TOPIC: "geometry_msgs/msg/PoseArray",
+}
+STAGE_JOINT = "stage"
+TACTILE_FRAME = "tactile"
+MARKERS_FRAME = "specimen"
+
+
+@dataclass(frozen=True)
+class MessageTypes:
+    """Message classes by type name, and how array fields are given to them."""
+
+    lookup: Callable[[str], type]
+    float64s: Callable[[np.ndarray], Any]
+    bytes_: Callable[[np.ndarray], Any]
+
+    @classmethod
+    def rosbags(cls, typestore: Any) -> MessageTypes:
+        return cls(lambda name: typestore.types[name], lambda a: np.asarray(a, np.float64),
+                   lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), np.uint8))
+
+    @classmethod
+    def rclpy(cls) -> MessageTypes:
+        import importlib
+
+        def lookup(name: str) -> type:
+            package, kind, msg = name.split("/")
+            return getattr(importlib.import_module(f"{package}.{kind}"), msg)
+
+        return cls(lookup, lambda a: array.array("d", np.asarray(a, np.float64).tobytes()),
+                   lambda a: array.array("B", np.ascontiguousarray(a).tobytes()))
+
+
+def stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def _header(types: MessageTypes, frame_id: str) -> Any:
+    Time = types.lookup("builtin_interfaces/msg/Time")
+    return types.lookup("std_msgs/msg/Header")(stamp=Time(sec=0, nanosec=0), frame_id=frame_id)
+
+
+def _stamp(msg: Any, t_ns: int) -> None:
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(t_ns // 1_000_000_000), int(t_ns % 1_000_000_000)
+
+
+# Encoders build their message once and refill it: a publisher or a bag writer
+# serialises it at once, and at 100 Hz the construction would cost more than the rest.
+
+class JointStateEncoder:
+    """``/stage/joint_states``: joint ``stage``, position = depth (m), velocity (m/s)."""
+
+    def __init__(self, types: MessageTypes) -> None:
+        self.msg = types.lookup("sensor_msgs/msg/JointState")(
+            header=_header(types, ""), name=[STAGE_JOINT], position=types.float64s([0.0]),
+            velocity=types.float64s([0.0]), effort=types.float64s([]),
+        )
+
+    def __call__(self, t_ns: int, depth: float, velocity: float) -> Any:
+        _stamp(self.msg, t_ns)
+        self.msg.position[0], self.msg.velocity[0] = depth, velocity
+        return self.msg
+
+
+class PressureImageEncoder:
+    """``/tactile/pressure``: 32FC1 image, rows x cols, little-endian float32 Pa."""
+
+    def __init__(self, types: MessageTypes) -> None:
+        self.types = types
+        self.msg = types.lookup("sensor_msgs/msg/Image")(
+            header=_header(types, TACTILE_FRAME), height=0, width=0, encoding="32FC1",
+            is_bigendian=0, step=0, data=types.bytes_(np.zeros(0, np.uint8)),
+        )
+
+    def __call__(self, t_ns: int, pressure: np.ndarray) -> Any:
+        p = np.ascontiguousarray(pressure, dtype="<f4")
+        _stamp(self.msg, t_ns)
+        self.msg.height, self.msg.width = p.shape
+        self.msg.step = p.shape[1] * 4
+        self.msg.data = self.types.bytes_(p)
+        return self.msg
+
+
+class MarkerArrayEncoder:
+    """``/markers/mesh``: marker positions (N, 2) in m, frame ``specimen``, identity orientations."""
+
+    def __init__(self, types: MessageTypes) -> None:
+        self.types = types
+        self.msg = types.lookup("geometry_msgs/msg/PoseArray")(header=_header(types, MARKERS_FRAME), poses=[])
+
+    def __call__(self, t_ns: int, positions: np.ndarray) -> Any:
+        xy = np.asarray(positions).tolist()
+        if len(self.msg.poses) != len(xy):
+            Pose = self.types.lookup("geometry_msgs/msg/Pose")
+            Point = self.types.lookup("geometry_msgs/msg/Point")
+            Quaternion = self.types.lookup("geometry_msgs/msg/Quaternion")
+            self.msg.poses = [Pose(position=Point(x=0.0, y=0.0, z=0.0),
+                                   orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)) for _ in xy]
+        _stamp(self.msg, t_ns)
+        for pose, (x, y) in zip(self.msg.poses, xy):
+            pose.position.x, pose.position.y = x, y
+        return self.msg
+
+
+class MessageError(ValueError):
+    """A message does not follow the contract; the text names the field."""
+
+
+def read_joint_state(msg: Any) -> tuple[float, float]:
+    """-> (depth m, velocity m/s) of joint ``stage``."""
+    names = list(msg.name)
+    if STAGE_JOINT not in names:
+        raise MessageError(f"name: no joint {STAGE_JOINT!r} (has {names})")
+    i = names.index(STAGE_JOINT)
+    if len(msg.position) <= i:
+        raise MessageError("position: missing")
+    velocity = float(msg.velocity[i]) if len(msg.velocity) > i else float("nan")
+    return float(msg.position[i]), velocity
+
+
+def read_pressure_image(msg: Any) -> np.ndarray:
+    """-> pressures (rows, cols) in Pa."""
+    if msg.encoding != "32FC1":
+        raise MessageError(f"encoding: {msg.encoding!r}, expected '32FC1'")
+    data = np.frombuffer(bytes(msg.data), dtype=">f4" if msg.is_bigendian else "<f4")
+    if data.size != msg.height * msg.width or msg.step != msg.width * 4:
+        raise MessageError(f"data: {data.size} floats for {msg.height} x {msg.width} (step {msg.step})")
+    return data.reshape(msg.height, msg.width).astype(float)
+
+
+def read_marker_array(msg: Any) -> np.ndarray:
+    """-> marker positions (N, 2) in m."""
+    return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float).reshape(-1, 2)
