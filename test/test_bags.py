@@ -1,0 +1,126 @@
+"""Reference bags, bag reading and writing, and the simulator's physics through them."""
+
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from rheo_ros.identification.paper import identify_paper
+from rheo_ros.io.bag import read_bag, read_params, simulate_to_bag
+from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
+from rheo_ros.models.response import respond
+from rheo_ros.params import Setup, load_params
+from rheo_ros.record import RecordError
+
+BAGS = Path(__file__).resolve().parents[1] / "bags"
+NAMES = sorted(p.stem for p in (BAGS / "params").glob("*.yaml"))
+TOPICS = (STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC)
+
+
+def test_every_reference_bag_is_committed_and_small():
+    assert len(NAMES) == 8
+    for name in NAMES:
+        size = sum(f.stat().st_size for f in (BAGS / name).iterdir())
+        assert size < 5e6, (name, size)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_reference_bag_reads_with_rosbags_and_mcap(name):
+    contents = read_bag(BAGS / name)
+    rec = contents.record
+    counts = {STAGE_TOPIC: rec.stage_t.size, TACTILE_TOPIC: rec.force_t.size, MARKERS_TOPIC: rec.marker_t.size}
+    mcap_file = next((BAGS / name).glob("*.mcap"))
+    seen = dict.fromkeys(TOPICS, 0)
+    with mcap_file.open("rb") as fh:
+        for _, channel, _, msg in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            seen[channel.topic] += 1
+            if channel.topic == STAGE_TOPIC and seen[STAGE_TOPIC] == 1:
+                assert list(msg.name) == ["stage"]
+    assert seen == counts
+    assert contents.params == load_params(BAGS / "params" / f"{name}.yaml")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_regenerated_bag_carries_the_same_messages(name, tmp_path):
+    params = load_params(BAGS / "params" / f"{name}.yaml")
+    simulate_to_bag(Setup(params), params["simulator.seed"], tmp_path / name)
+    a, b = read_bag(BAGS / name), read_bag(tmp_path / name)
+    for field in ("stage_t", "force_t", "marker_t"):
+        np.testing.assert_array_equal(getattr(a.record, field), getattr(b.record, field))
+    np.testing.assert_allclose(a.record.stage_depth, b.record.stage_depth, rtol=0, atol=1e-15)
+    # Other machines may round the last bits of the FE differently: markers to 1 nm,
+    # pressures within one count of the sensor's quantisation.
+    np.testing.assert_allclose(a.record.markers, b.record.markers, rtol=0, atol=1e-9)
+    step = max(params["tactile.resolution"], 1e-6 * np.abs(a.tactile).max())
+    assert np.abs(a.tactile - b.tactile).max() <= step * 1.0001
+    assert np.mean(a.tactile != b.tactile) < 1e-3
+
+
+def test_same_seed_same_bag_other_seed_other_noise(tmp_path):
+    setup = Setup(load_params(None))
+    for name, seed in (("a", 5), ("b", 5), ("c", 6)):
+        simulate_to_bag(setup, seed, tmp_path / name)
+    a, b, c = (read_bag(tmp_path / n) for n in "abc")
+    np.testing.assert_array_equal(a.tactile, b.tactile)
+    np.testing.assert_array_equal(a.record.markers, b.record.markers)
+    assert np.mean(a.tactile != c.tactile) > 0.5
+
+
+@pytest.mark.parametrize("name", ["table_I_long", "table_I_short"])
+def test_table_i_bags_identify_within_001_percent(name):
+    rec = read_bag(BAGS / name).record
+    est = identify_paper(rec)
+    errors = est.relative_errors({"E": 2.0, "c1": 8.0, "c2": 40.0})
+    assert max(abs(e) for e in errors.values()) < 0.01, errors
+
+
+def test_uniaxial_simulator_output_matches_exact_model_response():
+    params = load_params(BAGS / "params" / "table_I_short.yaml")
+    setup = Setup(params)
+    from rheo_ros.simulator import simulate_run
+
+    run = simulate_run(setup, 0)
+    force = setup.tactile.nodal_forces(run.tactile)[:, 0]
+    exact = respond(setup.model().rheology(), setup.profile.program(), run.tactile_t)
+    edges = [p.t_start for p in setup.profile.phases]
+    ok = np.abs(run.tactile_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.05
+    # float32 pressures (6e-8 relative) and the bar's inertia (density 1e-3): 1e-5 of the peak.
+    np.testing.assert_allclose(force[ok], exact.stress[ok], atol=1e-5 * exact.stress.max())
+    top = -(run.markers[:, -1, 1] - setup.mesh.nodes[-1, 1])
+    exact_m = respond(setup.model().rheology(), setup.profile.program(), run.marker_t).strain
+    okm = np.abs(run.marker_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.15
+    np.testing.assert_allclose(top[okm], exact_m[okm], atol=1e-5 * 0.5)
+
+
+def test_bag_without_a_topic_is_a_one_line_error(tmp_path):
+    setup = Setup(load_params(None))
+    from rheo_ros.io.bag import BagWriter
+
+    with BagWriter(tmp_path / "bag", setup.params, topics={STAGE_TOPIC: "sensor_msgs/msg/JointState"}):
+        pass
+    with pytest.raises(RecordError, match=r"bag: /stage/joint_states: no messages"):
+        read_bag(tmp_path / "bag")
+
+
+def test_truncated_bag_is_a_one_line_error(tmp_path):
+    shutil.copytree(BAGS / "table_I_short", tmp_path / "bag")
+    mcap_file = next((tmp_path / "bag").glob("*.mcap"))
+    data = mcap_file.read_bytes()
+    mcap_file.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordError, match=r"bag: cannot read bag"):
+        read_bag(tmp_path / "bag")
+
+
+def test_not_a_bag_names_the_path(tmp_path):
+    with pytest.raises(RecordError, match="not a rosbag2 directory"):
+        read_bag(tmp_path)
+
+
+def test_params_travel_in_the_bag_metadata():
+    params = read_params(BAGS / "clean_short_keep")
+    assert params["geometry"] == "plane_fe" and params["simulator.seed"] == 1
+    assert replace(Setup(params)).mesh.nodes.shape == (25, 2)
