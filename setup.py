@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/msg_schemas", glob("msg_schemas/*.msg")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -24,6 +25,8 @@ setup(
         # Every executable `ros2 run rheo_ros <name>` finds (colcon installs them in lib/rheo_ros).
         "console_scripts": [
             "rheo = rheo_ros.cli:main",
+            "stage = rheo_ros.nodes.stage:main",
+            "simulator = rheo_ros.nodes.simulator:main",
         ],
     },
 )

@@ -63,6 +63,17 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace) -> int:
+    from rheo_ros.nodes.recorder import record
+    from rheo_ros.params import load_params
+
+    if Path(args.out).exists():
+        raise OSError(f"{args.out} exists already, not overwriting")
+    counts = record(args.topics, args.out, load_params(args.params_file), args.duration)
+    print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rheo", description="Identify rheological parameters (E, c1, c2, Poisson ratio).")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -86,6 +97,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--params-file", metavar="FILE", help="ROS 2 parameters file (default: config/rheo_ros.yaml values)")
     s.add_argument("--out", required=True, metavar="DIR", help="bag directory to create")
     s.set_defaults(func=_simulate)
+    r = sub.add_parser("record", help="record live topics from DDS into a rosbag2 MCAP bag (Ctrl-C to stop)")
+    r.add_argument("topics", nargs="+", metavar="TOPIC")
+    r.add_argument("--out", required=True, metavar="DIR", help="bag directory to create")
+    r.add_argument("--params-file", metavar="FILE", help="parameters file stored in the bag's metadata")
+    r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    r.set_defaults(func=_record)
     return parser
 
 

@@ -27,6 +27,7 @@ DEFAULTS: dict[str, Any] = {
     "markers.rows": 5, "markers.cols": 5, "markers.noise": 2.0e-5,
     "stage.depth": 0.010, "stage.velocity": 0.0005, "stage.keep_time": 48.0, "stage.start_delay": 1.0,
     "stage.retract_speed": 0.02, "stage.release_time": 100.0,
+    "stage.driver": "simulated", "stage.wait_for_subscribers": 0, "simulator.clock": False,
     "rates.stage": 100.0, "rates.tactile": 50.0, "rates.markers": 10.0,
     "material.E": 3.33e4, "material.c1": 1.69e5, "material.c2": 3.11e7, "material.gamma": 0.332,
     "material.density": 1500.0,
@@ -35,6 +36,27 @@ DEFAULTS: dict[str, Any] = {
     "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
     "effects.strain_stiffening.coefficient": 4.0,
     "effects.sensor_drift.offset": 0.02, "effects.sensor_drift.rate": 2.0e-4,
+}
+
+
+PARAM_HELP: dict[str, str] = {
+    "geometry": "uniaxial (1D bar, paper Sec. II-III) or plane_fe (2D FE mesh on the marker grid, Sec. IV)",
+    "specimen.width": "m, along x", "specimen.height": "m, along y (pushing axis)",
+    "specimen.thickness": "m, along z",
+    "tactile.rows": "cells along z", "tactile.cols": "cells along x",
+    "tactile.noise": "Pa, Gaussian per cell", "tactile.resolution": "Pa per count (0: none)",
+    "markers.rows": "markers along y", "markers.cols": "markers along x", "markers.noise": "m per coordinate",
+    "stage.depth": "m, pushing depth", "stage.velocity": "m/s, pull", "stage.keep_time": "s",
+    "stage.start_delay": "s before pulling", "stage.retract_speed": "m/s on release (.inf: at once)",
+    "stage.release_time": "s after release until the run is done",
+    "stage.driver": "motion source: simulated, or a driver registered in rheo_ros.stage_drivers",
+    "stage.wait_for_subscribers": "stage node: start the run once this many subscribers listen (0: at once)",
+    "simulator.clock": "simulator node: publish /clock and run as fast as possible (stage with use_sim_time)",
+    "rates.stage": "Hz", "rates.tactile": "Hz", "rates.markers": "Hz",
+    "material.E": "Pa", "material.c1": "Pa s", "material.c2": "Pa s", "material.gamma": "Poisson ratio",
+    "material.density": "kg/m^3",
+    "simulator.omega": "rad/s, constraint stabilisation (eq. 1)", "simulator.seed": "noise seed",
+    "simulator.effects": "hidden effects: relaxation_branch, adhesion, strain_stiffening, sensor_drift",
 }
 
 

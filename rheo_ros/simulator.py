@@ -30,6 +30,10 @@ class Frame:
 class Simulator:
     """The specimen on the sensor under the stage, with its hidden effects and noise.
 
+    Stage samples may come at any times (over DDS, with jitter); the model steps on
+    its own grid of one stage period from the first sample, with the stage linear
+    between samples, and stamps its frames with grid times.
+
     Args:
         setup: geometry, material, effects, sensors and rates.
         seed: noise seed; the same seed and stage samples give the same frames.
@@ -44,41 +48,59 @@ class Simulator:
                             density=p["material.density"], omega=p["simulator.omega"])
         tactile_seq, marker_seq = np.random.SeedSequence(seed).spawn(2)
         self.tactile_rng, self.marker_rng = np.random.default_rng(tactile_seq), np.random.default_rng(marker_seq)
-        self.periods = {"tactile": 1.0 / p["rates.tactile"], "markers": 1.0 / p["rates.markers"]}
-        self.due = {"tactile": 0.0, "markers": 0.0}
-        self.started = False
+        self.step_s = 1.0 / p["rates.stage"]
+        self.every = {"tactile": round(p["rates.stage"] / p["rates.tactile"]),
+                      "markers": round(p["rates.stage"] / p["rates.markers"])}
+        self.k = -1                      # grid index of the model's time
+        self.last: tuple[float, float] | None = None   # last stage sample (t, depth)
         self.release: Release | None = None
         self._contact_force = np.zeros(self.mesh.cols)
+
+    @property
+    def t(self) -> float:
+        return self.k * self.step_s
 
     def specimen_force(self) -> np.ndarray:
         """Bottom nodal forces (N) the specimen's stress exerts now."""
         return self.fe.bottom_force() * float(self.model.stress_scale(np.array(self.fe.strain())))
 
     def step(self, t: float, depth: float) -> list[Frame]:
-        """Advance to ``t`` (s) with the stage at ``depth`` (m); the frames due by then."""
-        if not self.started:
-            self.fe.reset(t)
-            self.due = {k: t for k in self.due}
-            self.started = True
+        """Take a stage sample (``t`` s from the run's start, ``depth`` m); return the
+        frames of every grid time reached."""
+        frames: list[Frame] = []
+        if self.last is None:
+            self.last, self.k = (t, depth), 0
+            self.fe.reset(0.0)
+            frames += self._frames()
+            return frames
+        t0, d0 = self.last
+        if t <= t0:
+            return frames  # late or repeated sample: the model has moved on
+        while (self.k + 1) * self.step_s <= t + 1e-9:
+            self.k += 1
+            tk = self.k * self.step_s
+            self._advance(tk, d0 + (depth - d0) * min(1.0, (tk - t0) / (t - t0)))
+            frames += self._frames()
+        self.last = (t, depth)
+        return frames
+
+    def _advance(self, t: float, depth: float) -> None:
         held = self.fe.contact == "held"
         self.fe.advance(t, depth)
         if held and self.fe.contact == "free" and self.release is None:
-            self.release = Release(t, self._contact_force)  # force at the last sample in contact
-        force = self.specimen_force()
+            self.release = Release(t, self._contact_force)  # force at the last step in contact
         if self.fe.contact == "held":
-            self._contact_force = force
-        frames = []
-        if t >= self.due["tactile"] - 1e-9:
-            felt = self.model.measured_force(np.array([t]), force[None], self.release)
-            image = self.tactile.read(self.tactile.pressure(felt), self.tactile_rng)[0]
-            frames.append(Frame("tactile", t, image))
-        if t >= self.due["markers"] - 1e-9:
+            self._contact_force = self.specimen_force()
+
+    def _frames(self) -> list[Frame]:
+        out = []
+        if self.k % self.every["tactile"] == 0:
+            felt = self.model.measured_force(np.array([self.t]), self.specimen_force()[None], self.release)
+            out.append(Frame("tactile", self.t, self.tactile.read(self.tactile.pressure(felt), self.tactile_rng)[0]))
+        if self.k % self.every["markers"] == 0:
             positions = self.mesh.nodes + self.fe.displacement()
-            frames.append(Frame("markers", t, self.camera.observe(positions, self.marker_rng)))
-        for kind in self.due:
-            while self.due[kind] <= t + 1e-9:
-                self.due[kind] += self.periods[kind]
-        return frames
+            out.append(Frame("markers", self.t, self.camera.observe(positions, self.marker_rng)))
+        return out
 
 
 def stage_samples(setup: Setup) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,1 @@
+"""rclpy nodes: thin adapters over the core (messages in, core call, messages out)."""

@@ -1,0 +1,45 @@
+"""What every node shares: parameter declaration from the package's table, startup."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Callable
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+
+from rheo_ros.params import DEFAULTS, PARAM_HELP
+
+
+
+def declare_all(node: Node) -> dict[str, Any]:
+    """Declare the package's parameters (defaults, descriptions) and return their values.
+
+    One table for every node, so one parameters file serves them all.
+    """
+    values = {}
+    for name, default in DEFAULTS.items():
+        text = PARAM_HELP.get(name, "see config/rheo_ros.yaml")
+        node.declare_parameter(name, default, ParameterDescriptor(description=text))
+        values[name] = node.get_parameter(name).value
+    return values
+
+
+def run_node(make: Callable[[], Node]) -> None:
+    """Init, spin until Ctrl-C or SIGTERM, clean up; bad parameters end in one line."""
+    rclpy.init(args=sys.argv)
+    node = None
+    try:
+        node = make()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    except (ValueError, KeyError) as exc:
+        print(f"{sys.argv[0]}: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()

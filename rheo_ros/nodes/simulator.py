@@ -1,0 +1,87 @@
+"""Simulator node: the specimen on the tactile array under the stage (``ros2 run rheo_ros simulator``).
+
+Subscribes to ``/stage/joint_states``, steps the FE model with each stage sample and
+publishes ``/tactile/pressure`` and ``/markers/mesh`` at their rates. With
+``simulator.clock`` it also drives ``/clock`` (run the stage with ``use_sim_time``):
+each stage sample moves the clock one stage period on, so the run goes as fast as
+the two nodes can exchange messages.
+"""
+
+from __future__ import annotations
+
+import time
+
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Image, JointState
+
+from rheo_ros.io.messages import (
+    MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, MarkerArrayEncoder, MessageError, MessageTypes,
+    PressureImageEncoder, read_joint_state, stamp_ns,
+)
+from rheo_ros.nodes.common import declare_all, run_node
+from rheo_ros.params import Setup
+from rheo_ros.simulator import Simulator
+
+
+class SimulatorNode(Node):
+    def __init__(self) -> None:
+        super().__init__("simulator")
+        params = declare_all(self)
+        self.setup = Setup(params)
+        self.sim = Simulator(self.setup, params["simulator.seed"])
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        types = MessageTypes.rclpy()
+        self.encode_tactile, self.encode_markers = PressureImageEncoder(types), MarkerArrayEncoder(types)
+        self.tactile = self.create_publisher(Image, TACTILE_TOPIC, qos)
+        self.markers = self.create_publisher(PoseArray, MARKERS_TOPIC, qos)
+        self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, qos)
+        self.t0: int | None = None
+        self.drive_clock = params["simulator.clock"]
+        if self.drive_clock:
+            self.clock = self.create_publisher(Clock, "/clock", 10)
+            self.clock_ns = 1_000_000_000  # sim time starts at 1 s (0 means "no time yet")
+            self.last_progress = time.monotonic()
+            self.create_timer(0.2, self.kick_clock)  # wall timer: (re)sends the clock until the stage answers
+        effects = ", ".join(self.setup.effect_ids) or "none"
+        self.get_logger().info(f"simulator ready: {self.setup.params['geometry']} mesh "
+                               f"{self.setup.mesh.rows} x {self.setup.mesh.cols}, hidden effects: {effects}")
+
+    def on_stage(self, msg: JointState) -> None:
+        try:
+            depth, _ = read_joint_state(msg)
+        except MessageError as exc:
+            self.get_logger().warn(f"{STAGE_TOPIC}: {exc}; sample ignored", throttle_duration_sec=5.0)
+            return
+        stamp = stamp_ns(msg)
+        if self.t0 is None:
+            self.t0 = stamp
+        for frame in self.sim.step((stamp - self.t0) * 1e-9, depth):
+            ns = self.t0 + round(frame.t * 1e9)
+            if frame.kind == "tactile":
+                self.tactile.publish(self.encode_tactile(ns, frame.data))
+            else:
+                self.markers.publish(self.encode_markers(ns, frame.data))
+        if self.drive_clock and stamp >= self.clock_ns:
+            self.clock_ns = stamp + round(self.sim.step_s * 1e9)
+            self.publish_clock()
+
+    def publish_clock(self) -> None:
+        self.last_progress = time.monotonic()
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(self.clock_ns, 1_000_000_000)
+        self.clock.publish(msg)
+
+    def kick_clock(self) -> None:
+        if time.monotonic() - self.last_progress > 0.2:
+            self.publish_clock()
+
+
+def main() -> None:
+    run_node(SimulatorNode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,64 @@
+"""Where the stage's motion comes from, behind one small interface.
+
+The stage node asks its ``MotionSource`` for the depth at each tick and publishes
+it. The default source replays a ``StageProfile`` (the simulated stage); a real
+stage driver implements the same two methods, commanding the hardware and
+reporting its measured position, and is registered under the entry-point group
+``rheo_ros.stage_drivers``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Protocol
+
+from rheo_ros.experiment import StageProfile
+
+
+@dataclass(frozen=True)
+class StageSample:
+    depth: float      # m, positive into the specimen
+    velocity: float   # m/s
+    phase: str        # wait | pull | keep | release | done
+
+
+class MotionSource(Protocol):
+    def sample(self, t: float) -> StageSample:
+        """Depth and velocity at ``t`` s after the run started (the first call is t = 0)."""
+
+    def close(self) -> None:
+        """Stop the stage (end of run, or node shutdown)."""
+
+
+class SimulatedStage:
+    """The profile played back: no hardware."""
+
+    def __init__(self, profile: StageProfile) -> None:
+        self.profile = profile
+
+    def phase(self, t: float) -> str:
+        p = self.profile
+        if t < p.t_pull_start:
+            return "wait"
+        if t < p.t_pull_end:
+            return "pull"
+        if t < p.t_keep_end:
+            return "keep"
+        return "release" if t < p.t_end else "done"
+
+    def sample(self, t: float) -> StageSample:
+        return StageSample(float(self.profile.depth_at(t)), float(self.profile.velocity_at(t)), self.phase(t))
+
+    def close(self) -> None:
+        pass
+
+
+def motion_source(driver: str, profile: StageProfile) -> MotionSource:
+    """The motion source named ``driver``: ``simulated`` or a registered driver."""
+    if driver == "simulated":
+        return SimulatedStage(profile)
+    for ep in entry_points(group="rheo_ros.stage_drivers"):
+        if ep.name == driver:
+            return ep.load()(profile)
+    raise KeyError(f"stage driver {driver!r} not found (have: simulated)")

@@ -1,0 +1,115 @@
+"""Stage and simulator nodes over real DDS, in separate processes, recorded by `rheo record`."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rheo_ros.io.bag import read_bag, simulate_to_bag
+from rheo_ros.params import Setup, load_params
+
+BIN = Path(sys.executable).parent
+PARAMS = """/**:
+  ros__parameters:
+    stage: {depth: 0.002, velocity: 0.002, keep_time: 1.0, start_delay: 0.5, retract_speed: 0.02,
+            release_time: 1.5, wait_for_subscribers: 2}
+    simulator: {seed: 4}
+"""
+
+
+def ros_env(domain: int) -> dict:
+    # Each test run gets its own domain so that concurrent runs cannot hear each other.
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+
+
+@pytest.fixture(scope="module")
+def dds_run(tmp_path_factory):
+    """Recorder, simulator and stage as three processes; the recorder stopped by SIGTERM."""
+    tmp = tmp_path_factory.mktemp("dds")
+    params = tmp / "params.yaml"
+    params.write_text(PARAMS)
+    env = ros_env(100 + os.getpid() % 100)
+    logs = {name: (tmp / f"{name}.log").open("w") for name in ("record", "simulator", "stage")}
+    cmds = {
+        "record": [str(BIN / "rheo"), "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
+                   "--out", str(tmp / "recorded"), "--params-file", str(params)],
+        "simulator": [str(BIN / "simulator"), "--ros-args", "--params-file", str(params)],
+        "stage": [str(BIN / "stage"), "--ros-args", "--params-file", str(params)],
+    }
+    procs = {name: subprocess.Popen(cmd, env=env, stdout=logs[name], stderr=subprocess.STDOUT)
+             for name, cmd in cmds.items()}
+    try:
+        deadline = time.monotonic() + 60
+        while "phase done" not in (tmp / "stage.log").read_text() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        time.sleep(0.5)
+        procs["record"].send_signal(signal.SIGTERM)
+        record_rc = procs["record"].wait(timeout=20)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in procs.values():
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        for f in logs.values():
+            f.close()
+    direct = tmp / "direct"
+    p = load_params(params)
+    simulate_to_bag(Setup(p), p["simulator.seed"], direct)
+    return {"tmp": tmp, "record_rc": record_rc, "recorded": tmp / "recorded", "direct": direct, "params": p}
+
+
+def test_stage_logs_each_phase_it_commands(dds_run):
+    log = (dds_run["tmp"] / "stage.log").read_text()
+    positions = [log.find(f"phase {p}") for p in ("wait", "pull", "keep", "release", "done")]
+    assert all(i >= 0 for i in positions) and positions == sorted(positions), log
+
+
+def test_recording_stopped_by_sigterm_reads_back_whole(dds_run):
+    assert dds_run["record_rc"] == 0, (dds_run["tmp"] / "record.log").read_text()
+    assert (dds_run["recorded"] / "metadata.yaml").is_file()
+    rec = read_bag(dds_run["recorded"]).record
+    assert rec.stage_t.size >= 390           # >= 3.9 s of the 4 s run at 100 Hz
+    assert rec.force_t.size >= 195 and rec.marker_t.size >= 39
+
+
+def test_recorded_bag_equals_the_directly_simulated_one_within_noise(dds_run):
+    a, b = read_bag(dds_run["recorded"]), read_bag(dds_run["direct"])
+    ra, rb = a.record, b.record
+    t0 = ra.stage_t[0]
+    # The simulator stamps frames on its grid from the first stage sample.
+    ia = np.round((ra.force_t - t0) / 0.02).astype(int)
+    ib = np.round(rb.force_t / 0.02).astype(int)
+    common, ja, jb = np.intersect1d(ia, ib, return_indices=True)
+    assert common.size >= 195
+    setup = Setup(dds_run["params"])
+    sigma = setup.tactile.noise * np.sqrt(setup.tactile.rows * 8) * setup.tactile.cell_area  # N, inner node
+    edges = np.array([p.t_start for p in setup.profile.phases])
+    away = np.abs(common[:, None] * 0.02 - edges[None]).min(axis=1) > 0.05
+    diff = np.abs(ra.force[ja] - rb.force[jb])
+    # Same seed, same frames: away from the phase boundaries (where the stage's kink
+    # falls between two jittered samples) the forces agree far within the noise.
+    assert diff[away].max() < 0.1 * sigma, diff[away].max()
+    # At a boundary the sample may fall either side of the force's jump.
+    biggest_jump = np.abs(np.diff(rb.force, axis=0)).max()
+    assert diff.max() <= 1.5 * biggest_jump
+    ma = np.round((ra.marker_t - t0) / 0.1).astype(int)
+    mb = np.round(rb.marker_t / 0.1).astype(int)
+    _, ka, kb = np.intersect1d(ma, mb, return_indices=True)
+    assert np.abs(ra.markers[ka] - rb.markers[kb]).max() < 0.1 * setup.camera.noise
+
+
+def test_record_without_publishers_fails_in_one_line(tmp_path):
+    env = ros_env(200 + os.getpid() % 30)
+    out = subprocess.run([str(BIN / "rheo"), "record", "/nobody/here", "--out", str(tmp_path / "bag")],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "/nobody/here: not on the ROS graph" in out.stderr and "Traceback" not in out.stderr
