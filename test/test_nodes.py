@@ -104,7 +104,9 @@ def test_recorded_bag_equals_the_directly_simulated_one_within_noise(dds_run):
     ma = np.round((ra.marker_t - t0) / 0.1).astype(int)
     mb = np.round(rb.marker_t / 0.1).astype(int)
     _, ka, kb = np.intersect1d(ma, mb, return_indices=True)
-    assert np.abs(ra.markers[ka] - rb.markers[kb]).max() < 0.1 * setup.camera.noise
+    # Markers: the release instant moves with the jitter, shifting the recovery by
+    # a few um at most, against 20 um of camera noise.
+    assert np.abs(ra.markers[ka] - rb.markers[kb]).max() < 0.5 * setup.camera.noise
 
 
 def test_record_without_publishers_fails_in_one_line(tmp_path):
