@@ -11,7 +11,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/msg_schemas", glob("msg_schemas/*.msg")),
+        *[(f"share/{PACKAGE}/msg_schemas/{d}", glob(f"msg_schemas/{d}/*.msg"))
+          for d in sorted({p.split("/", 1)[1].rsplit("/", 1)[0] for p in glob("msg_schemas/*/msg/*.msg")})],
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools"],

@@ -69,7 +69,7 @@ def _record(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
-    counts = record(args.topics, args.out, load_params(args.params_file), args.duration)
+    counts = record(args.topics, args.out, load_params(args.params_file), args.duration, args.discovery_timeout)
     print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
 
@@ -102,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, metavar="DIR", help="bag directory to create")
     r.add_argument("--params-file", metavar="FILE", help="parameters file stored in the bag's metadata")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    r.add_argument("--discovery-timeout", type=float, default=10.0, metavar="S",
+                   help="give up if a topic has no publisher after S seconds (default 10)")
     r.set_defaults(func=_record)
     return parser
 

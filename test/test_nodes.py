@@ -18,7 +18,7 @@ PARAMS = """/**:
   ros__parameters:
     stage: {depth: 0.002, velocity: 0.002, keep_time: 1.0, start_delay: 0.5, retract_speed: 0.02,
             release_time: 1.5, wait_for_subscribers: 2}
-    simulator: {seed: 4}
+    simulator.seed: 4
 """
 
 
@@ -27,19 +27,25 @@ def ros_env(domain: int) -> dict:
     return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
 
 
-@pytest.fixture(scope="module")
-def dds_run(tmp_path_factory):
-    """Recorder, simulator and stage as three processes; the recorder stopped by SIGTERM."""
-    tmp = tmp_path_factory.mktemp("dds")
+@pytest.fixture(scope="module", params=["realtime", "fast"])
+def dds_run(request, tmp_path_factory):
+    """Recorder, simulator and stage as three processes; the recorder stopped by SIGTERM.
+
+    ``realtime``: the stage ticks on the wall clock. ``fast``: the simulator drives
+    ``/clock`` and the stage runs with ``use_sim_time``, one sample per tick.
+    """
+    fast = request.param == "fast"
+    tmp = tmp_path_factory.mktemp(request.param)
     params = tmp / "params.yaml"
-    params.write_text(PARAMS)
-    env = ros_env(100 + os.getpid() % 100)
+    params.write_text(PARAMS + ("    simulator.clock: true\n" if fast else ""))
+    env = ros_env(100 + (os.getpid() + 37 * fast) % 100)
     logs = {name: (tmp / f"{name}.log").open("w") for name in ("record", "simulator", "stage")}
     cmds = {
         "record": [str(BIN / "rheo"), "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
                    "--out", str(tmp / "recorded"), "--params-file", str(params)],
         "simulator": [str(BIN / "simulator"), "--ros-args", "--params-file", str(params)],
-        "stage": [str(BIN / "stage"), "--ros-args", "--params-file", str(params)],
+        "stage": [str(BIN / "stage"), "--ros-args", "--params-file", str(params)]
+        + (["-p", "use_sim_time:=true"] if fast else []),
     }
     procs = {name: subprocess.Popen(cmd, env=env, stdout=logs[name], stderr=subprocess.STDOUT)
              for name, cmd in cmds.items()}
@@ -111,7 +117,9 @@ def test_recorded_bag_equals_the_directly_simulated_one_within_noise(dds_run):
 
 def test_record_without_publishers_fails_in_one_line(tmp_path):
     env = ros_env(200 + os.getpid() % 30)
-    out = subprocess.run([str(BIN / "rheo"), "record", "/nobody/here", "--out", str(tmp_path / "bag")],
+    out = subprocess.run([str(BIN / "rheo"), "record", "/nobody/here", "--out", str(tmp_path / "bag"),
+                          "--discovery-timeout", "1"],
                          env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
-    assert "/nobody/here: not on the ROS graph" in out.stderr and "Traceback" not in out.stderr
+    assert "/nobody/here: not on the ROS graph after 1 s" in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "bag").exists()

@@ -180,3 +180,19 @@ def simulate_to_bag(setup: Setup, seed: int, out: str | Path) -> dict[str, int]:
         for ns, k, i in zip(stamps[order].tolist(), which[order].tolist(), index[order].tolist()):
             bag.write(topics[k], ns, make[k](ns, i))
     return {topic: t.size for topic, t in series}
+
+
+def message_definitions(typenames: Iterable[str]) -> dict[str, str]:
+    """``.msg`` text of each type and of every type it uses (rosbags' typestore)."""
+    store, out = typestore(), {}
+    todo = list(typenames)
+    while todo:
+        name = todo.pop()
+        if name in out:
+            continue
+        text, _ = store.generate_msgdef(name, ros_version=2)
+        sections = text.split("=" * 80 + "\n")
+        out[name] = sections[0]
+        used = (s.split("\n", 1)[0].removeprefix("MSG: ") for s in sections[1:])
+        todo += [u if "/msg/" in u else u.replace("/", "/msg/", 1) for u in used]
+    return out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from rheo_ros.io.messages import STAGE_TOPIC, JointStateEncoder, MessageTypes
@@ -13,7 +14,7 @@ from rheo_ros.stage import motion_source
 
 
 class StageNode(Node):
-    """Ticks at ``rates.stage`` on the node's clock (``use_sim_time`` follows ``/clock``)."""
+    """Ticks at ``rates.stage`` on the wall clock, or on each ``/clock`` tick with ``use_sim_time``."""
 
     def __init__(self) -> None:
         super().__init__("stage")
@@ -25,15 +26,19 @@ class StageNode(Node):
         self.encode = JointStateEncoder(MessageTypes.rclpy())
         self.t0: int | None = None
         self.phase = ""
-        self.timer = self.create_timer(1.0 / params["rates.stage"], self.tick)
+        if self.get_parameter("use_sim_time").value:
+            # Simulated time: one sample per /clock tick (the simulator moves the clock
+            # one stage period per sample), stamped with the tick's time.
+            self.create_subscription(Clock, "/clock", lambda m: self.tick(m.clock.sec * 10**9 + m.clock.nanosec), 10)
+        else:
+            self.create_timer(1.0 / params["rates.stage"], lambda: self.tick(self.get_clock().now().nanoseconds))
         p = self.setup.profile
         self.get_logger().info(
             f"stage ready: {p.depth * 1e3:.3g} mm at {p.velocity * 1e3:.3g} mm/s, keep {p.keep_time:g} s, "
             f"retract at {p.retract_speed * 1e3:.3g} mm/s ({params['stage.driver']})"
         )
 
-    def tick(self) -> None:
-        now = self.get_clock().now().nanoseconds
+    def tick(self, now: int) -> None:
         if now == 0:
             return  # simulated time has not started
         if self.t0 is None:
