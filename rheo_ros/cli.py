@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from collections.abc import Sequence
@@ -18,29 +19,12 @@ def _write_json(path: str | None, data: dict[str, Any]) -> None:
         Path(path).write_text(json.dumps(data, indent=2, default=float) + "\n")
 
 
-def _bench_paper(args: argparse.Namespace) -> int:
-    from rheo_ros.bench import paper
-
-    result = paper.run()
-    print(paper.format_table(result))
-    _write_json(args.json, result)
-    return 0
-
-
-def _bench_noise(args: argparse.Namespace) -> int:
-    from rheo_ros.bench import noise
-
-    result = noise.run(replicates=args.replicates, seed=args.seed)
-    print(noise.format_table(result))
-    _write_json(args.json, result)
-    return 0
-
-
-def _bench_simulator(args: argparse.Namespace) -> int:
-    from rheo_ros.bench import simulator
-
-    result = simulator.run()
-    print(simulator.format_table(result))
+def _bench(args: argparse.Namespace) -> int:
+    """Run ``rheo_ros.bench.<name>``: its ``run(**options)`` figures, printed and as JSON."""
+    module = importlib.import_module(f"rheo_ros.bench.{args.bench}")
+    options = {k: getattr(args, k) for k in ("replicates", "seed") if hasattr(args, k)}
+    result = module.run(**options)
+    print(module.format_table(result))
     _write_json(args.json, result)
     return 0
 
@@ -80,15 +64,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="benchmarks").add_subparsers(dest="bench", required=True)
     p = bench.add_parser("paper", help="reproduce the paper's Tables II-IV with the project's FE model")
     p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    p.set_defaults(func=_bench_paper)
+    p.set_defaults(func=_bench)
     n = bench.add_parser("noise", help="bias, std and Cramer-Rao bound under measurement noise")
     n.add_argument("--replicates", type=int, default=200, help="noisy replicates (default 200)")
     n.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     n.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    n.set_defaults(func=_bench_noise)
+    n.set_defaults(func=_bench)
     b = bench.add_parser("simulator", help="simulator speed as a multiple of real time (bag written directly)")
     b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    b.set_defaults(func=_bench_simulator)
+    b.set_defaults(func=_bench)
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
     s.add_argument("--effect", action="append", metavar="ID",
                    help="hidden effect to add (repeatable): relaxation_branch, adhesion, strain_stiffening, "
