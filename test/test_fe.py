@@ -126,3 +126,34 @@ def test_plane_shape_is_symmetric_and_bulges():
     np.testing.assert_allclose(shape.bottom_force, shape.bottom_force[::-1], rtol=1e-10)
     mid = shape.displacement.reshape(5, 5, 2)[2]
     assert mid[0, 0] < 0 < mid[-1, 0]                          # left edge out left, right out right
+
+
+def _release_run(retract_speed):
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    profile = StageProfile(keep_time=10.0, release_time=20.0, retract_speed=retract_speed)
+    fe = DynamicFE(mesh, three_element(3.33e4, 1.69e5, 3.11e7), 0.332)
+    t = sample_times(profile.t_end, 100.0)
+    return profile, t, fe.simulate(profile, t)
+
+
+def test_fast_retraction_loses_contact_at_once_then_recovers_freely():
+    profile, t, r = _release_run(0.02)   # 20 mm/s: faster than the specimen recovers
+    lost = t[np.flatnonzero(~r.contact & (t > profile.t_pull_start))[0]]
+    assert profile.t_keep_end <= lost <= profile.t_keep_end + 0.02
+    after = t > lost + 0.1
+    assert np.abs(r.bottom_force[after]).max() < 1e-3 * r.bottom_force.max()   # stress-free
+    top = r.strain[after]
+    assert np.all(np.diff(top) <= 1e-12)                                      # recovering
+
+
+def test_slow_retraction_keeps_contact_while_the_specimen_can_follow():
+    profile, t, r = _release_run(1e-3)   # 1 mm/s: the specimen (recovering at ~2 mm/s) keeps up at first
+    release = t >= profile.t_keep_end
+    in_contact = release & r.contact
+    assert t[in_contact].max() > profile.t_keep_end + 0.5
+    # Following the stage: the top sinks by the stage depth, and the stage still presses.
+    np.testing.assert_allclose(r.strain[in_contact] * 0.08, r.stage_depth[in_contact], atol=1e-6)
+    assert np.all(r.bottom_force[in_contact].sum(axis=1) > 0)
+    lost = release & ~r.contact
+    assert lost.any()                                                        # and then it lets go
+    assert np.all(r.strain[lost] * 0.08 >= r.stage_depth[lost] - 1e-9)     # the stage is above it
