@@ -90,11 +90,11 @@ def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") ->
     if left.size == 0:
         raise RecordError(f"{source}: stage: no release (depth held to the end)")
     i = left[0]
-    t_keep_end = float(t[i])
-    if i + 1 < t.size and 0 < depth[i + 1] < depth[i] and t[i] - t[i - 1] > 0:
-        rate = (depth[i] - depth[i + 1]) / (t[i + 1] - t[i])
-        t_keep_end = max(float(t[i] - (d_max - depth[i]) / rate), float(t[i - 1]))
+    t_keep_end, retract = float(t[i]), np.inf
+    if i + 1 < t.size and 0 < depth[i + 1] < depth[i]:
+        retract = float((depth[i] - depth[i + 1]) / (t[i + 1] - t[i]))
+        t_keep_end = max(float(t[i] - (d_max - depth[i]) / retract), float(t[i - 1]))
     return StageProfile(
         depth=d_max, velocity=float(velocity), keep_time=t_keep_end - t_pull_end,
-        start_delay=float(t_start), release_time=float(t[-1] - t_keep_end),
+        start_delay=float(t_start), release_time=float(t[-1] - t_keep_end), retract_speed=retract,
     )

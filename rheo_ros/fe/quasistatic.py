@@ -9,6 +9,10 @@ its elastic reaction times ``Q[s](t)``. ``s`` follows the stage while in contact
 and the element's free recovery after release (the body is then stress-free).
 One exact scalar response thus gives every node's force and every marker: the
 whole-record fit costs milliseconds per evaluation.
+
+Release is taken as instant: a stage retracting at the default 20 mm/s leaves the
+specimen within one stage sample (its viscous stress drops at once). A slow
+retraction, which the specimen follows for a while, is not modelled here yet.
 """
 
 from __future__ import annotations

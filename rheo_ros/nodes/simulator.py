@@ -41,7 +41,7 @@ class SimulatorNode(Node):
         self.t0: int | None = None
         self.drive_clock = params["simulator.clock"]
         if self.drive_clock:
-            self.clock = self.create_publisher(Clock, "/clock", 10)
+            self.clock_publisher = self.create_publisher(Clock, "/clock", 10)
             self.clock_ns = 1_000_000_000  # sim time starts at 1 s (0 means "no time yet")
             self.last_progress = time.monotonic()
             self.create_timer(0.2, self.kick_clock)  # wall timer: (re)sends the clock until the stage answers
@@ -72,7 +72,7 @@ class SimulatorNode(Node):
         self.last_progress = time.monotonic()
         msg = Clock()
         msg.clock.sec, msg.clock.nanosec = divmod(self.clock_ns, 1_000_000_000)
-        self.clock.publish(msg)
+        self.clock_publisher.publish(msg)
 
     def kick_clock(self) -> None:
         if time.monotonic() - self.last_progress > 0.2:
