@@ -32,17 +32,19 @@ def _bench(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     from rheo_ros.io.bag import simulate_to_bag
     from rheo_ros.models.effects import effect_class
-    from rheo_ros.params import Setup, load_params
+    from rheo_ros.params import Setup, check_params, load_params
 
     params = load_params(args.params_file)
     if args.effect is not None:
         for effect_id in args.effect:
             effect_class(effect_id)  # unknown ids fail here, with the catalogue
         params["simulator.effects"] = list(args.effect) or [""]
-    seed = params["simulator.seed"] if args.seed is None else args.seed
+    if args.seed is not None:
+        params["simulator.seed"] = args.seed
+    params = check_params(params, "command line")
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
-    counts = simulate_to_bag(Setup(params), seed, args.out)
+    counts = simulate_to_bag(Setup(params), params["simulator.seed"], args.out)
     print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
 

@@ -76,24 +76,45 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
-    """Flat parameters (defaults filled in) from a ROS 2 parameters file's text."""
+    """Flat, checked parameters (defaults filled in) from a ROS 2 parameters file's text.
+
+    Every ``<node>: ros__parameters:`` section is read, in file order (later ones
+    win), so a file with ``/**`` and per-node sections gives the CLI what the nodes
+    together see.
+    """
     try:
         doc = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
         raise ParamsError(f"{source}: not YAML: {str(exc).splitlines()[0]}") from None
-    nodes = [v for v in doc.values() if isinstance(v, Mapping) and "ros__parameters" in v] if isinstance(doc, Mapping) else []
-    if not nodes:
-        raise ParamsError(f"{source}: no '<node>: ros__parameters:' section")
-    given = flatten(nodes[0]["ros__parameters"])
+    sections = [v["ros__parameters"] for v in doc.values()
+                if isinstance(v, Mapping) and isinstance(v.get("ros__parameters"), Mapping)] if isinstance(doc, Mapping) else []
+    if not sections:
+        raise ParamsError(f"{source}: no '<node>: ros__parameters:' section with parameters")
+    given: dict[str, Any] = {}
+    for section in sections:
+        given.update(flatten(section))
+    return check_params(given, source)
+
+
+def check_params(given: Mapping[str, Any], source: str = "<parameters>") -> dict[str, Any]:
+    """Defaults filled in, types checked (an integer is taken for a float), values
+    checked by building everything from them (``Setup.check``)."""
     unknown = sorted(k for k in given if k not in DEFAULTS and not k.startswith("effects."))
     if unknown:
         raise ParamsError(f"{source}: unknown parameter(s): {', '.join(unknown)}")
     params = {**DEFAULTS, **given}
     for key, default in DEFAULTS.items():
-        if isinstance(default, float) and isinstance(params[key], int):
-            params[key] = float(params[key])
-        if type(params[key]) is not type(default):
-            raise ParamsError(f"{source}: {key}: expected {type(default).__name__}, got {params[key]!r}")
+        value = params[key]
+        if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+            params[key] = value = float(value)
+        if isinstance(default, list):
+            ok = isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)
+            params[key] = list(value) if ok else value
+        else:
+            ok = type(value) is type(default)
+        if not ok:
+            raise ParamsError(f"{source}: {key}: expected {type(default).__name__}, got {value!r}")
+    Setup(params).check(source)
     return params
 
 
@@ -125,6 +146,27 @@ class Setup:
     """Everything a simulation or an analysis needs, built from flat parameters."""
 
     params: dict[str, Any]
+
+    def check(self, source: str = "<parameters>") -> None:
+        """Build every part once; a value that cannot work raises ParamsError naming it."""
+        p = self.params
+        positive = [k for k in ("rates.stage", "rates.tactile", "rates.markers", "material.E", "material.c1",
+                                "material.c2", "material.density", "simulator.omega") if not p[k] > 0]
+        if positive:
+            raise ParamsError(f"{source}: {', '.join(positive)}: must be positive")
+        for rate in ("rates.tactile", "rates.markers"):
+            ratio = p["rates.stage"] / p[rate]
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise ParamsError(f"{source}: {rate}: {p[rate]} Hz must divide rates.stage ({p['rates.stage']} Hz): "
+                                  "the simulator samples on the stage's grid")
+        if p["simulator.seed"] < 0 or min(p["tactile.noise"], p["tactile.resolution"], p["markers.noise"]) < 0:
+            raise ParamsError(f"{source}: simulator.seed and the sensor noises must not be negative")
+        try:
+            _ = (self.mesh, self.tactile, self.profile, self.effects())
+            if self.gamma is not None:
+                self.mesh.stiffness(self.gamma)
+        except (ValueError, KeyError) as exc:
+            raise ParamsError(f"{source}: {exc}") from None
 
     @property
     def mesh(self) -> Mesh:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -54,12 +55,26 @@ class Record:
             if not np.all(np.isfinite(a)):
                 raise RecordError(f"{self.source}: {name}: non-finite values")
 
+    @cached_property
+    def marker_reference(self) -> np.ndarray:
+        """Where each marker starts (N, 2): the mean of the frames before the pull, or
+        the mesh's nominal grid when there are none. Markers drawn by hand are never
+        exactly on the design grid, and the paper measures displacements from the
+        initial positions."""
+        before = self.marker_t < self.profile().t_pull_start
+        return self.markers[before].mean(axis=0) if before.any() else self.mesh.nodes
+
     @property
     def marker_displacement(self) -> np.ndarray:
-        return self.markers - self.mesh.nodes[None]
+        """Marker displacements (Tm, N, 2) from ``marker_reference``."""
+        return self.markers - self.marker_reference[None]
 
     def profile(self) -> StageProfile:
         """The stage profile read off the stage samples (see ``segment_stage``)."""
+        return self._profile
+
+    @cached_property
+    def _profile(self) -> StageProfile:
         return segment_stage(self.stage_t, self.stage_depth, self.source)
 
     def phases(self) -> tuple[Phase, Phase, Phase]:
@@ -67,34 +82,54 @@ class Record:
 
 
 def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") -> StageProfile:
-    """Pull, keep and release from the stage depth alone.
+    """Pull, keep and release from the stage depth alone, robust to encoder noise.
 
-    Pull is the constant-velocity ramp: a line fitted to the samples between 5 % and
-    95 % of the maximum depth gives its velocity and, where it meets 0 and the
-    maximum, its start and end to a fraction of a sample. Release starts where the
-    stage leaves the maximum depth: extrapolated back along the retraction from the
-    first two samples that have left it (an instant release: the first one).
+    The hold is the plateau near the deepest samples: its median is the depth and
+    its spread (median absolute deviation) the encoder noise, which sets the
+    tolerance. Pull is the constant-velocity ramp before the plateau: a line fitted
+    to the samples between 5 % and 95 % of the depth gives its velocity and, where
+    it meets 0 and the depth, its start and end to a fraction of a sample. Release
+    starts where the stage leaves the plateau for good (three samples in a row):
+    extrapolated back along a line through the retraction, or at that sample when
+    the stage left at once.
     """
-    d_max = float(np.max(depth))
-    if d_max <= 0:
+    t, depth = np.asarray(t, float), np.asarray(depth, float)
+    peak = float(np.max(depth))
+    if peak <= 0:
         raise RecordError(f"{source}: stage: depth never positive, no pull phase")
-    tol = 1e-3 * d_max
-    at_max = np.flatnonzero(depth >= d_max - tol)
-    ramp = (depth > 0.05 * d_max) & (depth < 0.95 * d_max) & (np.arange(t.size) < at_max[0])
+    near = depth >= 0.98 * peak
+    level = float(np.median(depth[near]))
+    noise = 1.4826 * float(np.median(np.abs(depth[near] - level)))
+    tol = max(1e-3 * level, 6.0 * noise)
+    held = np.flatnonzero(np.abs(depth - level) <= tol)
+    first = held[0]
+    ramp = (depth > 0.05 * level) & (depth < 0.95 * level) & (np.arange(t.size) < first)
     if ramp.sum() < 2:
         raise RecordError(f"{source}: stage: fewer than 2 samples in the pull ramp")
     velocity, intercept = np.polyfit(t[ramp], depth[ramp], 1)
-    t_start = -intercept / velocity
-    t_pull_end = (d_max - intercept) / velocity
-    left = np.flatnonzero((t > t[at_max[0]]) & (depth < d_max - tol))
+    if velocity <= 0:
+        raise RecordError(f"{source}: stage: the pull ramp does not go deeper")
+    t_start, t_pull_end = -intercept / velocity, (level - intercept) / velocity
+    below = depth < level - tol
+    run = np.convolve(below.astype(int), np.ones(3, int), mode="full")[2:]  # below at i, i+1, i+2
+    left = np.flatnonzero((np.arange(t.size) > first) & below & ((run >= 3) | (np.arange(t.size) >= t.size - 2)))
     if left.size == 0:
         raise RecordError(f"{source}: stage: no release (depth held to the end)")
     i = left[0]
     t_keep_end, retract = float(t[i]), np.inf
-    if i + 1 < t.size and 0 < depth[i + 1] < depth[i]:
-        retract = float((depth[i] - depth[i + 1]) / (t[i + 1] - t[i]))
-        t_keep_end = max(float(t[i] - (d_max - depth[i]) / retract), float(t[i - 1]))
-    return StageProfile(
-        depth=d_max, velocity=float(velocity), keep_time=t_keep_end - t_pull_end,
-        start_delay=float(t_start), release_time=float(t[-1] - t_keep_end), retract_speed=retract,
-    )
+    j = i
+    while j < t.size and 0.05 * level < depth[j] < level - tol:  # the retraction ramp
+        j += 1
+    seg = np.arange(i, j)
+    if seg.size >= 2:
+        slope, icept = np.polyfit(t[seg], depth[seg], 1)
+        if slope < 0:
+            retract = float(-slope)
+            t_keep_end = float(np.clip((level - icept) / slope, t[i - 1], t[i]))
+    try:
+        return StageProfile(
+            depth=level, velocity=float(velocity), keep_time=max(t_keep_end - t_pull_end, 0.0),
+            start_delay=float(t_start), release_time=float(t[-1] - t_keep_end), retract_speed=retract,
+        )
+    except ValueError as exc:
+        raise RecordError(f"{source}: stage: {exc}") from None

@@ -90,9 +90,15 @@ def fit_force_curves(
 
 
 def final_displacement(record: Record, since: float) -> np.ndarray:
-    """Marker displacements (N, 2) averaged over the frames from ``since`` (s) to the end."""
+    """Marker displacements (N, 2) averaged over the frames from ``since`` (s) to the end.
+
+    The bottom row is held by the sensor (the model's boundary condition): its
+    displacement is zero, not the noise its markers show.
+    """
     last = record.marker_t >= min(since, record.marker_t[-1])
-    return record.marker_displacement[last].mean(axis=0)
+    u = record.marker_displacement[last].mean(axis=0)
+    u[record.mesh.bottom] = 0.0
+    return u
 
 
 # Final displacements: the specimen has recovered (to e^-15 of its Voigt strain) 15

@@ -31,6 +31,10 @@ class WholeRecordProblem:
         profile: the stage profile (default: read off the record's stage).
         guard: force samples this close (s) to a phase boundary are left out: the
             measured force is mid-jump there, the quasi-static model has jumped.
+
+    Each marker's starting position is a nuisance parameter (markers are not on the
+    design grid to the micrometre): it is profiled out, residuals taken about each
+    marker's mean over the frames, so only the motion informs the fit.
     """
 
     record: Record
@@ -49,7 +53,7 @@ class WholeRecordProblem:
         self.forward = QuasiStaticFE(self.record.mesh)
         self.plane = self.record.mesh.geometry == "plane_fe"
         self.names = tuple(self.model.parameters) + (("gamma",) if self.plane else ())
-        self._disp = self.record.marker_displacement
+        self._disp = self.record.markers - self.record.mesh.nodes[None]
 
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k != "gamma"})
@@ -60,14 +64,17 @@ class WholeRecordProblem:
     def residuals(self, params: dict[str, float]) -> np.ndarray:
         p = self.predict(params)
         rf = (p.force - self._force) / self.force_std
-        rm = (p.displacement - self._disp) / self.marker_std
+        rm = p.displacement - self._disp
+        rm = (rm - rm.mean(axis=0)) / self.marker_std
         return np.concatenate([rf.ravel(), rm.ravel()])
 
     def group_rms(self, params: dict[str, float]) -> tuple[np.ndarray, float]:
         """Unweighted RMS residual per node's force (N) and of the markers (m)."""
         p = self.predict(params)
         rf = np.sqrt(np.mean((p.force - self._force) ** 2, axis=0))
-        return rf, float(np.sqrt(np.mean((p.displacement - self._disp) ** 2)))
+        rm = p.displacement - self._disp
+        n = rm.shape[0]
+        return rf, float(np.sqrt(np.sum((rm - rm.mean(axis=0)) ** 2) / (rm.size * (n - 1) / n)))
 
 
 def _vector(names: tuple[str, ...], params: dict[str, float]) -> np.ndarray:

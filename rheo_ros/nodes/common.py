@@ -9,7 +9,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
-from rheo_ros.params import DEFAULTS, PARAM_HELP
+from rheo_ros.params import DEFAULTS, PARAM_HELP, check_params
 
 
 
@@ -21,9 +21,11 @@ def declare_all(node: Node) -> dict[str, Any]:
     values = {}
     for name, default in DEFAULTS.items():
         text = PARAM_HELP.get(name, "see config/rheo_ros.yaml")
-        node.declare_parameter(name, default, ParameterDescriptor(description=text))
+        # Dynamic typing: a file's "150" for a float parameter means 150.0, as in the CLI;
+        # check_params below applies the one set of rules.
+        node.declare_parameter(name, default, ParameterDescriptor(description=text, dynamic_typing=True))
         values[name] = node.get_parameter(name).value
-    return values
+    return check_params(values, f"node {node.get_name()}")
 
 
 def run_node(make: Callable[[], Node]) -> None:
@@ -35,7 +37,7 @@ def run_node(make: Callable[[], Node]) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
-    except (ValueError, KeyError) as exc:
+    except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
         print(f"{sys.argv[0]}: error: {exc}", file=sys.stderr)
         sys.exit(2)
     finally:
