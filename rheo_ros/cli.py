@@ -55,7 +55,10 @@ def _record(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
-    counts = record(args.topics, args.out, load_params(args.params_file), args.duration, args.discovery_timeout)
+    # Without a parameters file the bag carries none: reading it then asks for one,
+    # rather than trusting defaults the nodes may not have run with.
+    params = load_params(args.params_file) if args.params_file else None
+    counts = record(args.topics, args.out, params, args.duration, args.discovery_timeout)
     print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
 
@@ -99,7 +102,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     except (RecordError, ParamsError, KeyError, OSError) as exc:
-        print(f"rheo: error: {exc}", file=sys.stderr)
+        text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        print(f"rheo: error: {' '.join(str(text).split())}", file=sys.stderr)
         return 2
 
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
+import re
+
 import yaml
 
 from rheo_ros.experiment import StageProfile
@@ -24,6 +26,7 @@ DEFAULTS: dict[str, Any] = {
     "geometry": "plane_fe",
     "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
     "tactile.rows": 6, "tactile.cols": 32, "tactile.noise": 100.0, "tactile.resolution": 10.0,
+    "tactile.threshold": 300.0,
     "markers.rows": 5, "markers.cols": 5, "markers.noise": 2.0e-5,
     "stage.depth": 0.010, "stage.velocity": 0.0005, "stage.keep_time": 48.0, "stage.start_delay": 1.0,
     "stage.retract_speed": 0.02, "stage.release_time": 100.0,
@@ -35,7 +38,7 @@ DEFAULTS: dict[str, Any] = {
     "effects.relaxation_branch.stiffness": 3.0e4, "effects.relaxation_branch.viscosity": 1.5e5,
     "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
     "effects.strain_stiffening.coefficient": 4.0,
-    "effects.sensor_drift.offset": 0.02, "effects.sensor_drift.rate": 2.0e-4,
+    "effects.sensor_drift.offset": 0.1, "effects.sensor_drift.rate": 1.0e-3,
 }
 
 
@@ -45,6 +48,7 @@ PARAM_HELP: dict[str, str] = {
     "specimen.thickness": "m, along z",
     "tactile.rows": "cells along z", "tactile.cols": "cells along x",
     "tactile.noise": "Pa, Gaussian per cell", "tactile.resolution": "Pa per count (0: none)",
+    "tactile.threshold": "Pa, dead band: readings below it are zero (3 x noise keeps an unloaded array at zero)",
     "markers.rows": "markers along y", "markers.cols": "markers along x", "markers.noise": "m per coordinate",
     "stage.depth": "m, pushing depth", "stage.velocity": "m/s, pull", "stage.keep_time": "s",
     "stage.start_delay": "s before pulling", "stage.retract_speed": "m/s on release (.inf: at once)",
@@ -58,6 +62,21 @@ PARAM_HELP: dict[str, str] = {
     "simulator.omega": "rad/s, constraint stabilisation (eq. 1)", "simulator.seed": "noise seed",
     "simulator.effects": "hidden effects: relaxation_branch, adhesion, strain_stiffening, sensor_drift",
 }
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML as ROS 2 reads it: ``3.33e4`` is a float (PyYAML's YAML 1.1 wants ``3.33e+4``)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                |[-+]?\.(?:inf|Inf|INF)
+                |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."),
+)
 
 
 class ParamsError(ValueError):
@@ -83,7 +102,7 @@ def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
     together see.
     """
     try:
-        doc = yaml.safe_load(text) or {}
+        doc = yaml.load(text, Loader=_Loader) or {}
     except yaml.YAMLError as exc:
         raise ParamsError(f"{source}: not YAML: {str(exc).splitlines()[0]}") from None
     sections = [v["ros__parameters"] for v in doc.values()
@@ -159,7 +178,8 @@ class Setup:
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
                 raise ParamsError(f"{source}: {rate}: {p[rate]} Hz must divide rates.stage ({p['rates.stage']} Hz): "
                                   "the simulator samples on the stage's grid")
-        if p["simulator.seed"] < 0 or min(p["tactile.noise"], p["tactile.resolution"], p["markers.noise"]) < 0:
+        if p["simulator.seed"] < 0 or min(p["tactile.noise"], p["tactile.resolution"], p["tactile.threshold"],
+                                          p["markers.noise"]) < 0:
             raise ParamsError(f"{source}: simulator.seed and the sensor noises must not be negative")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
@@ -179,7 +199,8 @@ class Setup:
         p = self.params
         return TactileArray(rows=p["tactile.rows"], cols=p["tactile.cols"], width=p["specimen.width"],
                             depth=p["specimen.thickness"], nodes=self.mesh.cols,
-                            noise=p["tactile.noise"], resolution=p["tactile.resolution"])
+                            noise=p["tactile.noise"], resolution=p["tactile.resolution"],
+                            threshold=p["tactile.threshold"])
 
     @property
     def camera(self) -> MarkerCamera:

@@ -19,8 +19,11 @@ import numpy as np
 class TactileArray:
     """Cell grid ``rows`` (z) x ``cols`` (x) under a face ``width`` (x) by ``depth`` (z), in m.
 
-    ``noise`` (Pa): Gaussian per cell; ``resolution`` (Pa per count, 0 = none): ADC
-    quantisation. The sensor reads pressure only: tension reads as zero.
+    ``noise`` (Pa): Gaussian per cell; ``threshold`` (Pa): dead band, readings below
+    it are zero; ``resolution`` (Pa per count, 0 = none): ADC quantisation. The sensor
+    reads pressure only: tension reads as zero. Without a dead band, clipping the
+    noise at zero would leave an unloaded array reading ~noise/2.5 per cell, a
+    baseline that looks like drift.
     """
 
     rows: int = 6
@@ -30,6 +33,7 @@ class TactileArray:
     nodes: int = 5
     noise: float = 100.0
     resolution: float = 10.0
+    threshold: float = 300.0
 
     @cached_property
     def segment(self) -> np.ndarray:
@@ -56,9 +60,9 @@ class TactileArray:
         return np.repeat(cols[:, None, :], self.rows, axis=1)
 
     def read(self, pressure: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """What the sensor reports: noise, no tension, quantisation; float32 Pa."""
+        """What the sensor reports: noise, dead band (no tension), quantisation; float32 Pa."""
         p = pressure + rng.standard_normal(pressure.shape) * self.noise
-        p = np.maximum(p, 0.0)
+        p = np.where(p < self.threshold, 0.0, p)
         if self.resolution > 0:
             p = np.round(p / self.resolution) * self.resolution
         return p.astype(np.float32)

@@ -10,7 +10,7 @@ from rheo_ros.simulator import simulate_run
 def run(effect: str | None):
     params = load_params(None)
     # Noise-free sensors, so that any difference is the effect's.
-    params.update({"tactile.noise": 0.0, "tactile.resolution": 0.0, "markers.noise": 0.0,
+    params.update({"tactile.noise": 0.0, "tactile.resolution": 0.0, "tactile.threshold": 0.0, "markers.noise": 0.0,
                    "simulator.effects": [effect] if effect else [""]})
     setup = Setup(params)
     r = simulate_run(setup, 0)
@@ -88,7 +88,7 @@ def test_sensor_drift_is_a_baseline_and_a_trend_everywhere(clean):
 
 def test_effects_combine():
     params = load_params(None)
-    params.update({"tactile.noise": 0.0, "tactile.resolution": 0.0, "markers.noise": 0.0,
+    params.update({"tactile.noise": 0.0, "tactile.resolution": 0.0, "tactile.threshold": 0.0, "markers.noise": 0.0,
                    "simulator.effects": ["adhesion", "sensor_drift"]})
     setup = Setup(params)
     assert setup.model().name == "three_element+adhesion+sensor_drift"

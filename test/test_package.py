@@ -90,7 +90,7 @@ def test_bench_paper_cli_writes_the_errors(tmp_path):
     run = subprocess.run([sys.executable, "-m", "rheo_ros", "bench", "paper", "--json", str(out)],
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr
-    assert "Table I long-time" in run.stdout and "Table II" not in run.stderr
+    assert "Table I long-time" in run.stdout
     cases = json.loads(out.read_text())["cases"]
     assert [c["case"] for c in cases] == ["Table I long-time (1D)", "Table I short-time (1D)",
                                           "Table IV parameters (2D)"]
@@ -122,3 +122,57 @@ def test_message_schemas_cover_every_type_written_and_parse():
     for name in ("rheo_ros/msg/Phase", "rheo_ros/msg/Estimate"):
         store.register(get_types_from_msg(schemas[name], name))
         assert name in store.types
+
+
+@pytest.mark.parametrize(
+    ("args", "params", "message"),
+    [
+        (["--effect", "nope"], None, "unknown effect 'nope'"),
+        ([], "geometry: solid\n", "geometry 'solid'"),
+        ([], "specimen: {width: -0.08}\n", "must be positive"),
+        ([], "material: {gamma: 0.7}\n", "Poisson ratio 0.7"),
+        ([], "stage: {velocity: 0.0}\n", "stage profile"),
+        ([], "rates: {tactile: 30.0}\n", "rates.tactile: 30.0 Hz must divide rates.stage"),
+        ([], "material: {E: true}\n", "material.E: expected float"),
+        ([], "stage: {keep_time: [1, 2]}\n", "stage.keep_time: expected float"),
+        ([], "bogus: 1\n", "unknown parameter(s): bogus"),
+        (["--seed", "-1"], None, "simulator.seed and the sensor noises must not be negative"),
+    ],
+)
+def test_simulate_refuses_bad_input_in_one_line(tmp_path, args, params, message):
+    cmd = [sys.executable, "-m", "rheo_ros", "simulate", "--out", str(tmp_path / "bag"), *args]
+    if params is not None:
+        f = tmp_path / "p.yaml"
+        f.write_text("/**:\n  ros__parameters:\n" + "".join(f"    {line}\n" for line in params.splitlines()))
+        cmd += ["--params-file", str(f)]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert message in run.stderr and "Traceback" not in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "bag").exists()
+
+
+def test_missing_params_file_and_empty_section_are_one_line_errors(tmp_path):
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("/**:\n  ros__parameters:\n")
+    for f, message in ((tmp_path / "none.yaml", "cannot read"), (empty, "no '<node>: ros__parameters:' section")):
+        run = subprocess.run([sys.executable, "-m", "rheo_ros", "simulate", "--params-file", str(f),
+                              "--out", str(tmp_path / "bag")], capture_output=True, text=True, timeout=120)
+        assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr, run.stderr
+
+
+def test_per_node_sections_are_merged_like_the_nodes_see_them(tmp_path):
+    from rheo_ros.params import parse_params
+
+    text = "/**:\n  ros__parameters:\n    stage: {keep_time: 150}\nsimulator:\n  ros__parameters:\n    material: {E: 1.0e4}\n"
+    params = parse_params(text)
+    assert params["stage.keep_time"] == 150.0 and isinstance(params["stage.keep_time"], float)
+    assert params["material.E"] == 1.0e4
+
+
+def test_config_file_documents_exactly_the_defaults():
+    from rheo_ros.params import DEFAULTS, PARAM_HELP, load_params
+
+    assert load_params(REPO / "config" / "rheo_ros.yaml") == DEFAULTS
+    undocumented = [k for k in DEFAULTS if not k.startswith("effects.") and k not in PARAM_HELP]
+    assert undocumented == []

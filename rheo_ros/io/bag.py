@@ -8,6 +8,7 @@ inside the MCAP (readable by rosbags and by mcap + mcap-ros2-support).
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -88,14 +89,26 @@ class BagContents:
 
 
 def read_params(path: str | Path) -> dict[str, Any] | None:
-    """The parameters stored in a bag's metadata, or None."""
+    """The parameters stored in a bag's metadata, or None when it holds none.
+
+    Raises:
+        RecordError: metadata.yaml unreadable or not rosbag2 metadata.
+    """
     meta = Path(path) / "metadata.yaml"
     try:
-        info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
-    except (OSError, KeyError, TypeError, yaml.YAMLError):
-        return None
-    text = (info.get("custom_data") or {}).get(PARAMS_KEY)
-    return parse_params(text, f"{path}: metadata custom_data {PARAMS_KEY}") if text else None
+        info = yaml.safe_load(meta.read_text())
+    except OSError as exc:
+        raise RecordError(f"{meta}: cannot read: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise RecordError(f"{meta}: not YAML: {str(exc).splitlines()[0]}") from None
+    info = info.get("rosbag2_bagfile_information") if isinstance(info, dict) else None
+    if not isinstance(info, dict):
+        raise RecordError(f"{meta}: no rosbag2_bagfile_information mapping")
+    custom = info.get("custom_data") or {}
+    if not isinstance(custom, dict):
+        raise RecordError(f"{meta}: custom_data is not a mapping")
+    text = custom.get(PARAMS_KEY)
+    return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}") if text else None
 
 
 def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
@@ -107,7 +120,7 @@ def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
     except RecordError:
         raise
     except Exception as exc:  # rosbags raises several types for damaged files
-        raise RecordError(f"{path}: cannot read bag: {exc}") from None
+        raise RecordError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
 
 
 def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagContents:
@@ -158,17 +171,26 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
 
 def simulate_to_bag(setup: Setup, seed: int, out: str | Path) -> dict[str, int]:
     """Simulate a run and write the bag directly (same physics as the nodes, no DDS).
-    Messages are written in stamp order; returns the count per topic."""
+    Returns the message count per topic; a failure leaves no bag behind."""
     from rheo_ros.simulator import simulate_run
 
     run = simulate_run(setup, seed)
+    try:
+        return write_run(run, {**setup.params, "simulator.seed": seed}, out)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)  # no half-written bag to trip the next run
+        raise
+
+
+def write_run(run: Any, params: dict[str, Any], out: str | Path) -> dict[str, int]:
+    """Write a simulated ``Run`` as a bag, messages in stamp order; counts per topic."""
     series = [(STAGE_TOPIC, run.stage_t), (TACTILE_TOPIC, run.tactile_t), (MARKERS_TOPIC, run.marker_t)]
     stamps = np.concatenate([np.round(t * 1e9).astype(np.int64) for _, t in series])
     which = np.concatenate([np.full(t.size, k) for k, (_, t) in enumerate(series)])
     index = np.concatenate([np.arange(t.size) for _, t in series])
     order = np.lexsort((which, stamps))
     depth, velocity = run.stage_depth.tolist(), run.stage_velocity.tolist()
-    with BagWriter(out, {**setup.params, "simulator.seed": seed}) as bag:
+    with BagWriter(out, params) as bag:
         stage, tactile, markers = (JointStateEncoder(bag.types), PressureImageEncoder(bag.types),
                                    MarkerArrayEncoder(bag.types))
         make = (

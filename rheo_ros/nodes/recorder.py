@@ -23,7 +23,7 @@ from rheo_ros.record import RecordError
 
 
 def record(
-    topics: Sequence[str], out: str | Path, params: dict[str, Any], duration: float | None = None,
+    topics: Sequence[str], out: str | Path, params: dict[str, Any] | None, duration: float | None = None,
     discovery_timeout: float = 10.0,
 ) -> dict[str, int]:
     """Record ``topics`` until SIGINT/SIGTERM or ``duration`` s; return counts per topic.
