@@ -126,3 +126,16 @@ def test_params_travel_in_the_bag_metadata():
     params = read_params(BAGS / "clean_short_keep")
     assert params["geometry"] == "plane_fe" and params["simulator.seed"] == 1
     assert replace(Setup(params)).mesh.nodes.shape == (25, 2)
+
+
+@pytest.mark.parametrize("name", ["clean_short_keep", "clean_long_keep"])
+def test_refinement_through_the_sensor_path_recovers_the_material(name):
+    """Noisy, dead-banded, quantised pressures and noisy markers, as a robot would record them."""
+    from rheo_ros.identification.refine import refine
+
+    rec = read_bag(BAGS / name).record
+    est = refine(rec, identify_paper(rec))
+    truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
+    for k, v in truth.items():
+        assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
+        assert abs(est.params[k] - v) < 2e-3 * v, k
