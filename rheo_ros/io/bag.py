@@ -193,14 +193,16 @@ def write_run(run: Any, params: dict[str, Any], out: str | Path) -> dict[str, in
     with BagWriter(out, params) as bag:
         stage, tactile, markers = (JointStateEncoder(bag.types), PressureImageEncoder(bag.types),
                                    MarkerArrayEncoder(bag.types))
-        make = (
-            lambda ns, i: stage(ns, depth[i], velocity[i]),
-            lambda ns, i: tactile(ns, run.tactile[i]),
-            lambda ns, i: markers(ns, run.markers[i]),
-        )
-        topics = [topic for topic, _ in series]
+        conns = [bag.connections[topic] for topic, _ in series]
+        serialize, write = bag.store.serialize_cdr, bag.writer.write
         for ns, k, i in zip(stamps[order].tolist(), which[order].tolist(), index[order].tolist()):
-            bag.write(topics[k], ns, make[k](ns, i))
+            if k == 0:
+                msg = stage(ns, depth[i], velocity[i])
+            elif k == 1:
+                msg = tactile(ns, run.tactile[i])
+            else:
+                msg = markers(ns, run.markers[i])
+            write(conns[k], ns, serialize(msg, conns[k].msgtype))
     return {topic: t.size for topic, t in series}
 
 
