@@ -8,11 +8,11 @@ documents every name; ``DEFAULTS`` below is the same table in code.
 
 from __future__ import annotations
 
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
-
-import re
+from typing import Any
 
 import yaml
 

@@ -9,9 +9,10 @@ inside the MCAP (readable by rosbags and by mcap + mcap-ros2-support).
 from __future__ import annotations
 
 import shutil
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 import yaml
@@ -21,8 +22,19 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
 from rheo_ros.io.messages import (
-    MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, TOPIC_TYPES, JointStateEncoder, MarkerArrayEncoder, MessageError,
-    MessageTypes, PressureImageEncoder, read_joint_state, read_marker_array, read_pressure_image, stamp_ns,
+    MARKERS_TOPIC,
+    STAGE_TOPIC,
+    TACTILE_TOPIC,
+    TOPIC_TYPES,
+    JointStateEncoder,
+    MarkerArrayEncoder,
+    MessageError,
+    MessageTypes,
+    PressureImageEncoder,
+    read_joint_state,
+    read_marker_array,
+    read_pressure_image,
+    stamp_ns,
 )
 from rheo_ros.params import Setup, params_yaml, parse_params
 from rheo_ros.record import Record, RecordError

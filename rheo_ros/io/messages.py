@@ -8,8 +8,9 @@ hides the two differences: how a type is found and what an array field takes.
 from __future__ import annotations
 
 import array
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 
 from rheo_ros.params import DEFAULTS, PARAM_HELP, check_params
-
 
 
 def declare_all(node: Node) -> dict[str, Any]:

@@ -18,8 +18,15 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.io.messages import (
-    MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, MarkerArrayEncoder, MessageError, MessageTypes,
-    PressureImageEncoder, read_joint_state, stamp_ns,
+    MARKERS_TOPIC,
+    STAGE_TOPIC,
+    TACTILE_TOPIC,
+    MarkerArrayEncoder,
+    MessageError,
+    MessageTypes,
+    PressureImageEncoder,
+    read_joint_state,
+    stamp_ns,
 )
 from rheo_ros.nodes.common import declare_all, run_node
 from rheo_ros.params import Setup
