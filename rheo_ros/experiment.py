@@ -8,18 +8,11 @@ import numpy as np
 
 from rheo_ros.models.response import Program, Segment
 
-PHASE_NAMES = ("pull", "keep", "release")
-
-
 @dataclass(frozen=True)
 class Phase:
     name: str
     t_start: float
     t_end: float
-
-    @property
-    def duration(self) -> float:
-        return self.t_end - self.t_start
 
 
 @dataclass(frozen=True)

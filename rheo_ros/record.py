@@ -7,7 +7,7 @@ from functools import cached_property
 
 import numpy as np
 
-from rheo_ros.experiment import Phase, StageProfile
+from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
 
 
@@ -76,9 +76,6 @@ class Record:
     @cached_property
     def _profile(self) -> StageProfile:
         return segment_stage(self.stage_t, self.stage_depth, self.source)
-
-    def phases(self) -> tuple[Phase, Phase, Phase]:
-        return self.profile().phases
 
 
 def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") -> StageProfile:
