@@ -9,7 +9,7 @@ import numpy as np
 from rheo_ros.experiment import StageProfile, sample_times
 from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import Mesh
-from rheo_ros.models.effects import Model, Release
+from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
 
 
@@ -33,11 +33,10 @@ def simulate_record(
     result = fe.simulate(profile, t)
     pick = [np.searchsorted(t, g) for g in grids]
     force_t, i = grids[1], pick[1]
-    stress_force = result.bottom_force[i] * model.stress_scale(result.strain[i])[:, None]
     return Record(
         mesh=mesh,
         stage_t=grids[0], stage_depth=result.stage_depth[pick[0]],
-        force_t=force_t, force=model.measured_force(force_t, stress_force, Release.find(force_t, stress_force, result.contact[i])),
+        force_t=force_t, force=model.felt_force(force_t, result.bottom_force[i], result.strain[i], result.contact[i]),
         marker_t=grids[2], markers=mesh.nodes[None] + result.displacement[pick[2]],
         source=source,
     )

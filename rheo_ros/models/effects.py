@@ -187,6 +187,13 @@ class Model:
             force = effect.measured_force(t, force, release)
         return force
 
+    def felt_force(self, t: np.ndarray, force: np.ndarray, strain: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        """What the sensor feels over a sampled run: the linear nodal ``force`` (T, nodes)
+        scaled by the stress effects at nominal ``strain`` (T,), then the sensor-side
+        effects given when ``contact`` (T,) was lost."""
+        scaled = force * self.stress_scale(strain)[:, None]
+        return self.measured_force(t, scaled, Release.find(t, scaled, contact))
+
     @property
     def parameters(self) -> dict[str, float]:
         out = dict(self.base.parameters)
