@@ -11,9 +11,10 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        *[(f"share/{PACKAGE}/msg_schemas/{d}", glob(f"msg_schemas/{d}/*.msg"))
-          for d in sorted({p.split("/", 1)[1].rsplit("/", 1)[0] for p in glob("msg_schemas/*/msg/*.msg")})],
+        *[(f"share/{PACKAGE}/msg_schemas/{d}", glob(f"msg_schemas/{d}/*.*"))
+          for d in sorted({p.split("/", 1)[1].rsplit("/", 1)[0] for p in glob("msg_schemas/*/*/*.*")})],
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -28,6 +29,8 @@ setup(
             "rheo = rheo_ros.cli:main",
             "stage = rheo_ros.nodes.stage:main",
             "simulator = rheo_ros.nodes.simulator:main",
+            "segmenter = rheo_ros.nodes.segmenter:main",
+            "estimator = rheo_ros.nodes.estimator:main",
         ],
     },
 )

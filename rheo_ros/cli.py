@@ -22,7 +22,7 @@ def _write_json(path: str | None, data: dict[str, Any]) -> None:
 def _bench(args: argparse.Namespace) -> int:
     """Run ``rheo_ros.bench.<name>``: its ``run(**options)`` figures, printed and as JSON."""
     module = importlib.import_module(f"rheo_ros.bench.{args.bench}")
-    options = {k: getattr(args, k) for k in ("replicates", "seed") if hasattr(args, k)}
+    options = {k: getattr(args, k) for k in ("replicates", "seed", "experiments", "rate") if hasattr(args, k)}
     result = module.run(**options)
     print(module.format_table(result))
     _write_json(args.json, result)
@@ -55,12 +55,39 @@ def _record(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
-    # Without a parameters file the bag carries none: reading it then asks for one,
-    # rather than trusting defaults the nodes may not have run with.
+    # Without a parameters file the bag carries the publishing nodes' own parameters
+    # (from their parameter services), never defaults they may not have run with.
     params = load_params(args.params_file) if args.params_file else None
     counts = record(args.topics, args.out, params, args.duration, args.discovery_timeout)
     print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
+
+
+def _play(args: argparse.Namespace) -> int:
+    from rheo_ros.nodes.player import play
+
+    counts = play(args.bag, args.rate, args.clock, args.loop, args.topics, args.wait_for_subscribers,
+                  args.discovery_timeout)
+    print(f"{args.bag}: played " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
+    return 0
+
+
+NODES = ("stage", "simulator", "segmenter", "estimator")
+
+
+def _run(args: argparse.Namespace) -> int:
+    """``ros2 run rheo_ros NODE ...`` where there is no ros2 CLI: the same entry point,
+    in this process, with the remaining arguments (``--ros-args ...``)."""
+    module = importlib.import_module(f"rheo_ros.nodes.{args.node}")
+    sys.argv = [args.node, *args.args]
+    module.main()
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from rheo_ros.demo import run_demo
+
+    return run_demo(args.params_file, args.timeout)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,6 +102,12 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     n.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     n.set_defaults(func=_bench)
+    o = bench.add_parser("online", help="estimator node over DDS: latency per phase, idle CPU, memory over many "
+                                        "experiments")
+    o.add_argument("--experiments", type=int, default=100, help="experiments replayed (default 100)")
+    o.add_argument("--rate", type=float, default=10.0, help="replay speed, x real time (default 10)")
+    o.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    o.set_defaults(func=_bench)
     b = bench.add_parser("simulator", help="simulator speed as a multiple of real time (bag written directly)")
     b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     b.set_defaults(func=_bench)
@@ -89,11 +122,34 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record live topics from DDS into a rosbag2 MCAP bag (Ctrl-C to stop)")
     r.add_argument("topics", nargs="+", metavar="TOPIC")
     r.add_argument("--out", required=True, metavar="DIR", help="bag directory to create")
-    r.add_argument("--params-file", metavar="FILE", help="parameters file stored in the bag's metadata")
+    r.add_argument("--params-file", metavar="FILE",
+                   help="parameters file stored in the bag's metadata (default: the publishing nodes' parameters)")
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     r.add_argument("--discovery-timeout", type=float, default=10.0, metavar="S",
                    help="give up if a topic has no publisher after S seconds (default 10)")
     r.set_defaults(func=_record)
+    pl = sub.add_parser("play", help="publish a bag's topics over DDS (recorded timing, or as fast as taken with --clock)")
+    pl.add_argument("bag", metavar="BAG", help="rosbag2 directory")
+    pl.add_argument("--rate", type=float, default=1.0, help="speed factor on the recorded timing (default 1)")
+    pl.add_argument("--clock", action="store_true",
+                    help="drive /clock and go as fast as the subscribers take the messages")
+    pl.add_argument("--loop", type=int, default=1, metavar="N", help="play N times, stamps shifted each pass")
+    pl.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
+    pl.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
+                    help="start once every topic has N subscribers (default 0: at once)")
+    pl.add_argument("--discovery-timeout", type=float, default=10.0, metavar="S",
+                    help="give up waiting for subscribers after S seconds (default 10)")
+    pl.set_defaults(func=_play)
+    rn = sub.add_parser("run", help="start a node (as 'ros2 run rheo_ros NODE' does), e.g. rheo run estimator "
+                                    "--ros-args --params-file config/rheo_ros.yaml")
+    rn.add_argument("node", choices=NODES)
+    rn.add_argument("args", nargs=argparse.REMAINDER, help="node arguments (--ros-args ...)")
+    rn.set_defaults(func=_run)
+    dm = sub.add_parser("demo", help="stage, simulator, segmenter and estimator as separate processes over DDS: "
+                                     "each estimate as it arrives, the final one beside the true parameters")
+    dm.add_argument("--params-file", metavar="FILE", help="parameters file (default: config/rheo_ros.yaml values)")
+    dm.add_argument("--timeout", type=float, default=120.0, metavar="S", help="give up after S seconds (default 120)")
+    dm.set_defaults(func=_demo)
     return parser
 
 

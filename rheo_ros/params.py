@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +20,7 @@ from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import three_element
+from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
 DEFAULTS: dict[str, Any] = {
@@ -30,7 +31,8 @@ DEFAULTS: dict[str, Any] = {
     "markers.rows": 5, "markers.cols": 5, "markers.noise": 2.0e-5,
     "stage.depth": 0.010, "stage.velocity": 0.0005, "stage.keep_time": 48.0, "stage.start_delay": 1.0,
     "stage.retract_speed": 0.02, "stage.release_time": 100.0,
-    "stage.driver": "simulated", "stage.wait_for_subscribers": 0, "simulator.clock": False,
+    "stage.driver": "simulated", "stage.wait_for_subscribers": 0, "stage.autostart": True,
+    "stage.exit_when_done": False, "simulator.clock": False, "simulator.clock_step": 10,
     "rates.stage": 100.0, "rates.tactile": 50.0, "rates.markers": 10.0,
     "material.E": 3.33e4, "material.c1": 1.69e5, "material.c2": 3.11e7, "material.gamma": 0.332,
     "material.density": 1500.0,
@@ -39,6 +41,12 @@ DEFAULTS: dict[str, Any] = {
     "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
     "effects.strain_stiffening.coefficient": 4.0,
     "effects.sensor_drift.offset": 0.1, "effects.sensor_drift.rate": 1.0e-3,
+    "segmenter.confirm": 3, "segmenter.plateau": 10, "segmenter.flat_slope": 0.2,
+    "segmenter.settle_window": 5.0, "segmenter.settle_fraction": 1.0e-3, "segmenter.min_depth": 1.0e-4,
+    "segmenter.contact_force": 0.005, "segmenter.max_release": 600.0,
+    "estimator.refine": True, "estimator.undetermined_std": 0.3, "estimator.gamma_std": 0.05,
+    "estimator.rate_std": 0.3, "estimator.pre_contact": 2.0, "estimator.max_push_time": 3600.0,
+    "estimator.stale_after": 2.0, "estimator.diagnostics_period": 1.0,
 }
 
 
@@ -55,7 +63,26 @@ PARAM_HELP: dict[str, str] = {
     "stage.release_time": "s after release until the run is done",
     "stage.driver": "motion source: simulated, or a driver registered in rheo_ros.stage_drivers",
     "stage.wait_for_subscribers": "stage node: start the run once this many subscribers listen (0: at once)",
+    "stage.autostart": "stage node: run the profile once at start (false: wait for /rheo/identify goals)",
+    "stage.exit_when_done": "stage node: end the process when the profile is done",
     "simulator.clock": "simulator node: publish /clock and run as fast as possible (stage with use_sim_time)",
+    "simulator.clock_step": "stage periods the /clock moves on per exchange with the stage (fast mode)",
+    "segmenter.confirm": "samples in a row that confirm a change (push start, leaving the hold, contact)",
+    "segmenter.plateau": "flat stage samples that end the pull",
+    "segmenter.flat_slope": "a plateau's trend must stay below this fraction of the pull velocity",
+    "segmenter.settle_window": "s of marker frames judged for the end of release",
+    "segmenter.settle_fraction": "motion below this fraction of the push's largest marker motion is settled",
+    "segmenter.min_depth": "m, shallower pushes are encoder noise, not experiments",
+    "segmenter.contact_force": "N above the resting baseline that counts as contact",
+    "segmenter.max_release": "s, a release still moving after this ends anyway",
+    "estimator.refine": "follow each closed-form update by the whole-record fit of the data so far",
+    "estimator.undetermined_std": "relative std above which a parameter is reported as not determined",
+    "estimator.gamma_std": "std of the Poisson ratio above which it is reported as not determined",
+    "estimator.rate_std": "closed form: relative std of the relaxation rate above which E, c1, c2 are not determined",
+    "estimator.pre_contact": "s of data kept before each push (the markers' starting positions)",
+    "estimator.max_push_time": "s, a longer push is dropped so that memory stays bounded",
+    "estimator.stale_after": "s without a message after which a topic is stale (WARN; phases go on without it)",
+    "estimator.diagnostics_period": "s between /diagnostics messages",
     "rates.stage": "Hz", "rates.tactile": "Hz", "rates.markers": "Hz",
     "material.E": "Pa", "material.c1": "Pa s", "material.c2": "Pa s", "material.gamma": "Poisson ratio",
     "material.density": "kg/m^3",
@@ -232,6 +259,12 @@ class Setup:
     def model(self) -> Model:
         p = self.params
         return Model(three_element(p["material.E"], p["material.c1"], p["material.c2"]), self.effects())
+
+    def segmenter_config(self) -> SegmenterConfig:
+        return SegmenterConfig(**{f.name: self.params[f"segmenter.{f.name}"] for f in fields(SegmenterConfig)})
+
+    def estimator_config(self) -> EstimatorConfig:
+        return EstimatorConfig(**{f.name: self.params[f"estimator.{f.name}"] for f in fields(EstimatorConfig)})
 
     @property
     def gamma(self) -> float | None:

@@ -25,6 +25,8 @@ class Record:
         force_t, force: bottom nodal forces P1..Pn (N, positive pressing), (T, n).
         marker_t, markers: marker positions (m, specimen frame), (Tm, N, 2).
         source: where the data came from, for messages.
+        stage_profile: the phases when already known (the online segmenter's, for a
+            run still in progress); ``None``: read off the stage samples.
     """
 
     mesh: Mesh
@@ -35,6 +37,7 @@ class Record:
     marker_t: np.ndarray
     markers: np.ndarray
     source: str = "<memory>"
+    stage_profile: StageProfile | None = None
 
     def __post_init__(self) -> None:
         checks = [
@@ -70,11 +73,13 @@ class Record:
         return self.markers - self.marker_reference[None]
 
     def profile(self) -> StageProfile:
-        """The stage profile read off the stage samples (see ``segment_stage``)."""
+        """The stage profile: given, or read off the stage samples (``segment_stage``)."""
         return self._profile
 
     @cached_property
     def _profile(self) -> StageProfile:
+        if self.stage_profile is not None:
+            return self.stage_profile
         return segment_stage(self.stage_t, self.stage_depth, self.source)
 
 

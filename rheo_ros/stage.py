@@ -10,6 +10,8 @@ reporting its measured position, and is registered under the entry-point group
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 from importlib.metadata import entry_points
 from typing import Protocol
 
@@ -27,6 +29,10 @@ class MotionSource(Protocol):
     def sample(self, t: float) -> StageSample:
         """Depth and velocity at ``t`` s after the run started (the first call is t = 0)."""
 
+    def abort(self, t: float) -> None:
+        """Leave the specimen now: retract to depth 0 from wherever the stage is, at a
+        safe speed (a cancelled identification, a node shutting down mid-run)."""
+
     def close(self) -> None:
         """Stop the stage (end of run, or node shutdown)."""
 
@@ -34,10 +40,22 @@ class MotionSource(Protocol):
 class SimulatedStage:
     """The profile played back: no hardware."""
 
+    # Retraction speed of an abort when the profile lets go at once (m/s).
+    SAFE_RETRACT = 0.005
+
     def __init__(self, profile: StageProfile) -> None:
         self.profile = profile
+        self._abort: tuple[float, float, float] | None = None   # (t, depth then, speed)
+
+    def abort(self, t: float) -> None:
+        if self._abort is None:
+            speed = self.profile.retract_speed if np.isfinite(self.profile.retract_speed) else self.SAFE_RETRACT
+            self._abort = (t, float(self.profile.depth_at(t)), speed)
 
     def phase(self, t: float) -> str:
+        if self._abort is not None:
+            t0, d0, speed = self._abort
+            return "release" if d0 - speed * (t - t0) > 0 else "done"
         p = self.profile
         if t < p.t_pull_start:
             return "wait"
@@ -48,6 +66,10 @@ class SimulatedStage:
         return "release" if t < p.t_end else "done"
 
     def sample(self, t: float) -> StageSample:
+        if self._abort is not None:
+            t0, d0, speed = self._abort
+            depth = max(d0 - speed * (t - t0), 0.0)
+            return StageSample(depth, -speed if depth > 0 else 0.0, self.phase(t))
         return StageSample(float(self.profile.depth_at(t)), float(self.profile.velocity_at(t)), self.phase(t))
 
     def close(self) -> None:

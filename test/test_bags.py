@@ -46,18 +46,32 @@ def test_reference_bag_reads_with_rosbags_and_mcap(name):
 
 @pytest.mark.parametrize("name", NAMES)
 def test_regenerated_bag_carries_the_same_messages(name, tmp_path):
+    """Regenerating a bag gives the same messages, to tolerances set by physical scales.
+
+    Other CPUs pick other BLAS kernels, so the FE's last bits differ between machines
+    (seen: markers 1e-8 m apart on an AVX-512 EPYC). The tolerances are fractions of
+    the sensors' noise, or of the push depth / peak pressure for noise-free bags.
+    """
     params = load_params(BAGS / "params" / f"{name}.yaml")
     simulate_to_bag(Setup(params), params["simulator.seed"], tmp_path / name)
     a, b = read_bag(BAGS / name), read_bag(tmp_path / name)
     for field in ("stage_t", "force_t", "marker_t"):
         np.testing.assert_array_equal(getattr(a.record, field), getattr(b.record, field))
-    np.testing.assert_allclose(a.record.stage_depth, b.record.stage_depth, rtol=0, atol=1e-15)
-    # Other machines may round the last bits of the FE differently: markers to 1 nm,
-    # pressures within one count of the sensor's quantisation.
-    np.testing.assert_allclose(a.record.markers, b.record.markers, rtol=0, atol=1e-9)
-    step = max(params["tactile.resolution"], 1e-6 * np.abs(a.tactile).max())
-    assert np.abs(a.tactile - b.tactile).max() <= step * 1.0001
-    assert np.mean(a.tactile != b.tactile) < 1e-3
+    depth = params["stage.depth"]
+    np.testing.assert_allclose(a.record.stage_depth, b.record.stage_depth, rtol=0, atol=1e-12 * depth)
+    # Markers: 1 % of the camera noise, or 1e-6 of the depth without noise.
+    marker_tol = 0.01 * params["markers.noise"] or 1e-6 * depth
+    np.testing.assert_allclose(a.record.markers, b.record.markers, rtol=0, atol=marker_tol)
+    # Pressures: within one count of the quantisation (1e-6 of the peak without one);
+    # a cell whose true pressure sits at the dead band may read zero on one machine
+    # and just above the threshold on another.
+    count = params["tactile.resolution"] or 1e-6 * np.abs(a.tactile).max()
+    diff = np.abs(a.tactile - b.tactile)
+    at_threshold = (np.minimum(a.tactile, b.tactile) == 0) & (
+        np.maximum(a.tactile, b.tactile) <= params["tactile.threshold"] + 2 * count)
+    assert np.all((diff <= count * 1.0001) | at_threshold), diff.max()
+    if params["tactile.resolution"] > 0:
+        assert np.mean(a.tactile != b.tactile) < 1e-3   # a count flips only near a rounding edge
 
 
 def test_same_seed_same_bag_other_seed_other_noise(tmp_path):
@@ -139,3 +153,20 @@ def test_refinement_through_the_sensor_path_recovers_the_material(name):
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
         assert abs(est.params[k] - v) < 2e-3 * v, k
+
+
+def test_regenerated_bag_holds_under_another_blas_kernel(tmp_path):
+    """The same check with OpenBLAS forced to its plain SSE3 kernels (as on an older CPU):
+    measured here, markers move by 6.5e-9 m and pressures by one count, as on another
+    machine; the tolerances above must hold for it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.path.insert(0, 'test'); import test_bags, pathlib; "
+        "test_bags.test_regenerated_bag_carries_the_same_messages('clean_short_keep', pathlib.Path(sys.argv[1]))"
+    )
+    env = dict(__import__("os").environ, OPENBLAS_CORETYPE="Prescott")
+    run = subprocess.run([sys.executable, "-c", code, str(tmp_path)], cwd=BAGS.parent, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]

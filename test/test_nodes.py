@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rheo_ros.io.bag import read_bag, simulate_to_bag
+from rheo_ros.io.bag import read_bag, read_params, simulate_to_bag
 from rheo_ros.params import Setup, load_params
 
 BIN = Path(sys.executable).parent
@@ -138,12 +138,24 @@ def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path):
     params.write_text(PARAMS.replace("wait_for_subscribers: 2", "wait_for_subscribers: 1"))
     rec = subprocess.Popen([str(BIN / "rheo"), "record", "/stage/joint_states", "--out", str(tmp_path / "bag")],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    stage_log = tmp_path / "stage.log"
     stage = subprocess.Popen([str(BIN / "stage"), "--ros-args", "--params-file", str(params)], env=env,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             stdout=stage_log.open("w"), stderr=subprocess.STDOUT)
     try:
-        time.sleep(4.0)
+        # Wait for the graph, not a fixed time: the recorder says when it records, and
+        # the stage (which waits for its subscriber) logs each phase it commands.
+        lines = []
+        while not any(line.startswith("recording") for line in lines):
+            line = rec.stdout.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+        deadline = time.monotonic() + 60
+        while "phase keep" not in stage_log.read_text():
+            assert time.monotonic() < deadline, stage_log.read_text()
+            time.sleep(0.05)
         rec.send_signal(signal.SIGINT)
         out, _ = rec.communicate(timeout=20)
+        out = "".join(lines) + out
     finally:
         stage.send_signal(signal.SIGINT)
         stage.wait(timeout=10)
@@ -154,3 +166,7 @@ def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path):
         n_mcap = sum(1 for _ in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
     assert n_rosbags == n_mcap > 100, out
     assert f"{n_rosbags} on /stage/joint_states" in out
+    # No --params-file: the bag carries the stage node's own parameters.
+    stored = read_params(tmp_path / "bag")
+    assert "storing parameters of /stage" in out
+    assert stored["stage.depth"] == 0.002 and stored["simulator.seed"] == 4

@@ -24,47 +24,54 @@ def console_scripts() -> list[str]:
     raise AssertionError("no console_scripts in setup.py")
 
 
+def readme_workspace_commands() -> list[str]:
+    """The README's commands for a ROS 2 workspace (the block after its marker)."""
+    text = (REPO / "README.md").read_text()
+    block = text.split("<!-- workspace-commands -->", 1)[1].split("```bash\n", 1)[1].split("```", 1)[0]
+    return [line for line in block.splitlines() if line and not line.startswith("#")]
+
+
 @pytest.fixture(scope="module")
 def colcon_install(tmp_path_factory):
-    """`colcon build` of the repository into a temporary build/install/log base."""
-    colcon = Path(sys.executable).parent / "colcon"
-    if not colcon.exists():
+    """The README's workspace commands, run as written in a workspace holding a copy of
+    the repository: colcon builds both packages, ``source install/setup.bash`` works."""
+    if not (Path(sys.executable).parent / "colcon").exists():
         pytest.fail("colcon is not installed in this environment (./tasks venv installs it)")
-    base = tmp_path_factory.mktemp("colcon")
-    src = base / "src"
+    ws = tmp_path_factory.mktemp("ws")
     # A copy without the virtual environment, as a ROS workspace holds the package.
-    shutil.copytree(REPO, src / "rheo_ros", ignore=shutil.ignore_patterns(".venv", ".git", "build", "install", "log"))
-    env = dict(os.environ, AMENT_PREFIX_PATH=sys.prefix)
-    subprocess.run(
-        [str(colcon), "--log-base", str(base / "log"), "build", "--base-paths", str(src),
-         "--build-base", str(base / "build"), "--install-base", str(base / "install")],
-        cwd=base, env=env, check=True, capture_output=True, text=True, timeout=300,
-    )
-    return base / "install"
+    shutil.copytree(REPO, ws / "src" / "rheo_ros",
+                    ignore=shutil.ignore_patterns(".venv", ".git", "build", "install", "log"))
+    commands = readme_workspace_commands()
+    build = [c for c in commands if not c.startswith("ros2 ")]
+    assert any(c.startswith("colcon build") for c in build) and "source install/setup.bash" in build
+    # After sourcing, report what `ros2 run` would use: the ament index and the path.
+    # `ros2 run rheo_ros NODE --help` = exec <prefix>/lib/rheo_ros/NODE --help in the
+    # sourced environment; --help starts nothing.
+    script = "set -e\n" + "\n".join(build) + "\n" + (
+        'prefix=$(python -c "from ament_index_python.packages import get_package_prefix as p; print(p(\'rheo_ros\'))")\n'
+        'for node in rheo stage estimator segmenter; do "$prefix/lib/rheo_ros/$node" --help | head -1; done\n'
+        'python -c "from ament_index_python.packages import get_package_prefix as p; '
+        "print(p('rheo_ros')); print(p('rheo_ros_interfaces'))\"\n")
+    venv = Path(sys.executable).parent.parent
+    env = dict(os.environ, VIRTUAL_ENV=str(venv), PATH=f"{venv / 'bin'}:{os.environ['PATH']}",
+               AMENT_PREFIX_PATH=str(venv))
+    run = subprocess.run(["bash", "-c", script], cwd=ws, env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    lines = run.stdout.strip().splitlines()
+    return ws / "install", [Path(p) for p in lines[-2:]], lines[:-2]
 
 
 def test_colcon_installs_every_executable_where_ros2_run_looks(colcon_install):
-    prefix_path = os.pathsep.join([str(colcon_install / "rheo_ros"), sys.prefix])
-    code = (
-        "import sys; from ament_index_python.packages import get_package_prefix; "
-        "print(get_package_prefix('rheo_ros'))"
-    )
-    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, AMENT_PREFIX_PATH=prefix_path),
-                         check=True, capture_output=True, text=True)
-    prefix = Path(out.stdout.strip())
-    assert prefix == colcon_install / "rheo_ros"
+    install, (prefix, interfaces_prefix), helps = colcon_install
+    assert prefix == install / "rheo_ros" and interfaces_prefix == install / "rheo_ros_interfaces"
     names = console_scripts()
-    assert "rheo" in names
+    assert {"rheo", "stage", "simulator", "segmenter", "estimator"} <= set(names)
     for name in names:
         exe = prefix / "lib" / "rheo_ros" / name
         assert exe.is_file() and os.access(exe, os.X_OK), exe
-    # `ros2 run rheo_ros rheo --help` = exec <prefix>/lib/rheo_ros/rheo --help
-    site = next((colcon_install / "rheo_ros" / "lib").glob("python3*/site-packages"))
-    env = dict(os.environ, AMENT_PREFIX_PATH=prefix_path, PYTHONPATH=str(site))
-    run = subprocess.run([str(prefix / "lib" / "rheo_ros" / "rheo"), "--help"], env=env,
-                         capture_output=True, text=True, timeout=60)
-    assert run.returncode == 0, run.stderr
-    assert "bench" in run.stdout
+    assert (prefix / "share" / "rheo_ros" / "launch" / "rheo_ros.launch.py").is_file()
+    usages = [line for line in helps if line.startswith("usage:")]
+    assert len(usages) == 4 and all(u.split()[1] in ("rheo", "stage", "estimator", "segmenter") for u in usages)
 
 
 def test_package_xml_is_ament_python_format_3():
@@ -118,8 +125,14 @@ def test_message_schemas_cover_every_type_written_and_parse():
     # Every type the bags carry, and every type those use, as the typestore defines it.
     for name, text in message_definitions(TOPIC_TYPES.values()).items():
         assert schemas.get(name) == text, name
+    # The package's own types: the interface package's sources, copied here so that a
+    # bag or a script can decode them with no ROS install.
+    interfaces = REPO / "interfaces" / "rheo_ros_interfaces"
+    for kind in ("msg", "action"):
+        for src in (interfaces / kind).iterdir():
+            assert (REPO / "msg_schemas" / "rheo_ros_interfaces" / kind / src.name).read_text() == src.read_text()
     store = get_typestore(Stores.ROS2_KILTED)
-    for name in ("rheo_ros/msg/Phase", "rheo_ros/msg/Estimate"):
+    for name in ("rheo_ros_interfaces/msg/Phase", "rheo_ros_interfaces/msg/Estimate"):
         store.register(get_types_from_msg(schemas[name], name))
         assert name in store.types
 
@@ -176,3 +189,23 @@ def test_config_file_documents_exactly_the_defaults():
     assert load_params(REPO / "config" / "rheo_ros.yaml") == DEFAULTS
     undocumented = [k for k in DEFAULTS if not k.startswith("effects.") and k not in PARAM_HELP]
     assert undocumented == []
+
+
+def test_launch_file_starts_the_four_nodes_the_package_installs():
+    """No `launch` in the package index: the file is checked as Python and against the
+    executables it names (ros2 launch itself runs on a ROS 2 machine)."""
+    text = (REPO / "launch" / "rheo_ros.launch.py").read_text()
+    compile(text, "rheo_ros.launch.py", "exec")
+    names = ast.literal_eval(text.split('for name in ', 1)[1].split(' if ', 1)[0])
+    assert set(names) == {"stage", "simulator", "segmenter", "estimator"} <= set(console_scripts())
+
+
+@pytest.mark.parametrize("node", ["stage", "simulator", "segmenter", "estimator"])
+def test_node_help_prints_and_starts_nothing(node, tmp_path):
+    """--help with a real driver must not move hardware: the node prints its parameters
+    and exits before creating anything (no ROS context, no publisher)."""
+    run = subprocess.run([str(Path(sys.executable).parent / node), "--help"], capture_output=True, text=True,
+                         timeout=60, env=dict(os.environ, ROS_DOMAIN_ID="230"))
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith(f"usage: {node}") and "stage.autostart" in run.stdout
+    assert "ready" not in run.stdout + run.stderr

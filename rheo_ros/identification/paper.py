@@ -43,6 +43,34 @@ class ForceCurves:
     keep_start: np.ndarray        # F_K(t_P)
     keep_end: np.ndarray          # F_K(t_P + t_K)
     residual_rms: float
+    rate_rel_std: float = np.nan  # relative standard deviation of ``rate`` (Gauss-Newton)
+
+
+@dataclass(frozen=True)
+class PullCurve:
+    """Eq. 6 fitted to each node's pull force alone (N): ``F = A + (F0 - A) exp(-r t)``."""
+
+    rate: float
+    rate_rel_std: float
+    asymptote: np.ndarray         # A = c2 J u_keep / t_P
+    start: np.ndarray             # F0 = F_P(0+) = c1c2/(c1+c2) J u_keep / t_P
+    end: np.ndarray               # F_P(t_P)
+    residual_rms: float
+
+
+def _rate_search(residuals, rate0: float, n_linear: int) -> tuple[float, float]:
+    """Variable projection over log(rate): the rate and its relative std.
+
+    For the reduced problem (amplitudes projected out) the Gauss-Newton variance of
+    log(rate) is ``s^2 / (J^T J)`` with ``s^2`` the residual variance after all the
+    fitted parameters; it says how well the data pin the relaxation rate down.
+    """
+    fit = least_squares(lambda x: residuals(np.exp(x[0])), [np.log(rate0)], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    dof = max(fit.fun.size - n_linear - 1, 1)
+    s2 = float(fit.fun @ fit.fun) / dof
+    jtj = float(fit.jac[:, 0] @ fit.jac[:, 0])
+    rel_std = float(np.sqrt(s2 / jtj)) if jtj > 0 else np.inf
+    return float(np.exp(fit.x[0])), rel_std
 
 
 def fit_force_curves(
@@ -75,8 +103,7 @@ def fit_force_curves(
     head, tail = total[: max(1, total.size // 10)].mean(), total[-max(1, total.size // 10):].mean()
     span = tk[-1] - tk[0]
     rate0 = np.log(head / tail) / (0.9 * span) if head > tail > 0 else 1.0 / span
-    fit = least_squares(lambda x: amplitudes(np.exp(x[0]))[2], [np.log(rate0)], xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    rate = float(np.exp(fit.x[0]))
+    rate, rate_rel_std = _rate_search(lambda r: amplitudes(r)[2], rate0, 3 * force.shape[1])
     (asym, amp), k, res = amplitudes(rate)
     pull_time, keep_time = t_pe - t_ps, t_ke - t_pe
     return ForceCurves(
@@ -86,7 +113,64 @@ def fit_force_curves(
         keep_start=k,
         keep_end=k * np.exp(-rate * keep_time),
         residual_rms=float(np.sqrt(np.mean(res**2))),
+        rate_rel_std=rate_rel_std,
     )
+
+
+def fit_pull_curve(
+    t: np.ndarray, force: np.ndarray, profile: StageProfile, guard: float = 0.1, source: str = "<memory>"
+) -> PullCurve:
+    """Fit eq. 6 to the pull phase alone (one rate shared by every node).
+
+    What the pull alone tells: the force's jump at the start (``c1c2/(c1+c2)``) and
+    its asymptote (``c2``) and rate, the last two only as far as the force curves
+    within the pull (``rate * t_P`` well above a few hundredths).
+    """
+    t_ps, t_pe = profile.t_pull_start, profile.t_pull_end
+    pull = (t > t_ps + guard) & (t < t_pe - guard)
+    if pull.sum() < 4:
+        raise RecordError(f"{source}: force: {pull.sum()} samples in the pull phase, need 4 to fit")
+    tp, Fp = t[pull] - t_ps, force[pull]
+
+    def amplitudes(rate: float) -> tuple[np.ndarray, np.ndarray]:
+        X = np.column_stack([np.ones_like(tp), np.exp(-rate * tp)])
+        ab, *_ = np.linalg.lstsq(X, Fp, rcond=None)
+        return ab, (X @ ab - Fp).ravel()
+
+    rate, rel_std = _rate_search(lambda r: amplitudes(r)[1], 1.0 / (t_pe - t_ps), 2 * force.shape[1])
+    (asym, amp), res = amplitudes(rate)
+    return PullCurve(rate, rel_std, asym, asym + amp, asym + amp * np.exp(-rate * (t_pe - t_ps)),
+                     float(np.sqrt(np.mean(res**2))))
+
+
+def displacement_during(record: Record, t_from: float, t_to: float) -> np.ndarray:
+    """Marker displacements (N, 2) averaged over the frames in [t_from, t_to]; the
+    bottom row held (zero), as the model has it."""
+    frames = (record.marker_t >= t_from) & (record.marker_t <= t_to)
+    if not frames.any():
+        raise RecordError(f"{record.source}: markers: no frame between {t_from:.3f} s and {t_to:.3f} s")
+    u = record.marker_displacement[frames].mean(axis=0)
+    u[record.mesh.bottom] = 0.0
+    return u
+
+
+def displacement_at_depth(record: Record, depth: float) -> np.ndarray:
+    """Marker displacements (N, 2) at stage ``depth`` (m), from the pull's frames.
+
+    While the stage pushes, every marker moves in proportion to the depth (the body
+    keeps one shape: the Lame parts share one operator, eq. 19-21), so a line through
+    the origin fitted per coordinate against the stage depth gives the shape with
+    the noise of every frame averaged out.
+    """
+    profile = record.profile()
+    frames = (record.marker_t > profile.t_pull_start) & (record.marker_t <= profile.t_pull_end)
+    if frames.sum() < 2:
+        raise RecordError(f"{record.source}: markers: {frames.sum()} frames in the pull phase, need 2")
+    d = np.interp(record.marker_t[frames], record.stage_t, record.stage_depth)
+    u = record.marker_displacement[frames]
+    shape = np.tensordot(d, u, axes=(0, 0)) / (d @ d)
+    shape[record.mesh.bottom] = 0.0
+    return shape * depth
 
 
 def final_displacement(record: Record, since: float) -> np.ndarray:
@@ -146,13 +230,11 @@ def identify_paper(
             params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
-    if mesh.geometry == "plane_fe":
-        eqs.append("IV.B least squares over " + ",".join(labels))
     return Estimate(
         params=params,
         method=f"paper_{method}",
-        equations=tuple(eqs),
-        residual_rms={"force_fit": curves.residual_rms, "equations": rms},
+        equations=_node_labels(nodes, mesh.geometry, eqs),
+        residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
                  f"final displacements averaged over {t_last - since:.3g} s"),
     )
@@ -162,21 +244,33 @@ def _solve_equations(
     record: Record, curves: ForceCurves, profile: StageProfile, nodes: np.ndarray, method: str,
     u_final: np.ndarray,
 ) -> tuple[dict[str, float], float]:
-    """Solve eq. 6 (+14), 10 or 17 over the nodes by least squares; -> params, RMS residual."""
+    """Eq. 6 (+14), 10 or 17 over the nodes; -> params, RMS residual.
+
+    Per node, with g = [K_gamma u_final] (J u_final of the paper) and eta = c1c2/(c1+c2):
+      a = c2 g                                   (eq. 6; with eq. 14 short-time)
+      b = eta g  (+ eta F_K(end) / (r c2))       (eq. 10 long-time / eq. 17 short-time)
+    """
+    t_P = profile.pull_time
+    F_end = np.zeros_like(curves.keep_end) if method == "long_time" else curves.keep_end
+    a = curves.pull_asymptote * t_P - F_end / curves.rate
+    b = (curves.pull_end - curves.keep_start) * t_P
+    return solve_node_equations(record, nodes, u_final, a, b, F_end, curves.rate)
+
+
+def solve_node_equations(
+    record: Record, nodes: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, F_end: np.ndarray, r: float,
+) -> tuple[dict[str, float], float]:
+    """Solve ``a = c2 g`` and ``b = eta g + eta F_end / (r c2)`` over the bottom nodes by
+    least squares (Section IV.B), ``g = [K_gamma u]`` at each node; -> params, RMS residual.
+
+    ``u`` (N, 2) is the displacement the equations refer to (u_keep or u_final).
+    """
     mesh = record.mesh
-    r, t_P = curves.rate, profile.pull_time
-    u_dofs = u_final.ravel() if mesh.dofs_per_node == 2 else u_final[:, 1]
+    u_dofs = u.ravel() if mesh.dofs_per_node == 2 else u[:, 1]
     bottom_y = mesh.y_dofs(mesh.bottom[nodes])
     K_lambda, K_mu = mesh.stiffness_parts
     g_lambda, g_mu = (K_lambda @ u_dofs)[bottom_y], (K_mu @ u_dofs)[bottom_y]
     plane = mesh.geometry == "plane_fe"
-
-    # Per node, with g = [K_gamma u_final] (J u_final of the paper) and eta = c1c2/(c1+c2):
-    #   a = c2 g                                   (eq. 6; with eq. 14 short-time)
-    #   b = eta g  (+ eta F_K(end) / (r c2))       (eq. 10 long-time / eq. 17 short-time)
-    F_end = np.zeros_like(curves.keep_end) if method == "long_time" else curves.keep_end
-    a = curves.pull_asymptote * t_P - F_end / r
-    b = (curves.pull_end - curves.keep_start) * t_P
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
 
     def g_of(gamma: float) -> np.ndarray:
@@ -193,7 +287,7 @@ def _solve_equations(
     g0 = g_of(0.3)
     if np.any(g0 <= 0) or np.any(a <= 0) or np.any(b <= 0):
         raise RecordError(
-            f"{record.source}: markers/force: final displacement or force jump has the wrong sign "
+            f"{record.source}: markers/force: displacement or force jump has the wrong sign "
             "for a push (no residual deformation, or no force drop at the end of pull)"
         )
     x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if plane else [])
@@ -208,6 +302,60 @@ def _solve_equations(
     if plane:
         params["gamma"] = float(sol.x[2])
     return params, float(np.sqrt(np.mean(sol.fun**2)))
+
+
+def _node_labels(nodes: np.ndarray, mesh_geometry: str, eqs: list[str]) -> tuple[str, ...]:
+    if mesh_geometry == "plane_fe":
+        eqs.append("IV.B least squares over " + ",".join(f"P{i + 1}" for i in nodes))
+    return tuple(eqs)
+
+
+def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1) -> Estimate:
+    """What the pull phase alone gives (the run may still be going on).
+
+    Eq. 6 per node: its jump at the start is ``eta J u_keep / t_P`` (eta = c1c2/(c1+c2))
+    and its asymptote ``c2 J u_keep / t_P``, with ``u_keep`` the displacement the markers
+    show at the end of the pull; the rate is ``E/(c1+c2)``. Solved over the nodes like
+    eq. 6 and 10 (the jump at t = 0 plays the part of eq. 10's jump at t_P).
+    ``Estimate.residual_rms['rate_rel_std']`` says how far the pull's curvature pins
+    the rate (and with it E and c2) down.
+    """
+    profile = record.profile()
+    nodes = np.arange(record.mesh.cols) if nodes is None else np.asarray(nodes)
+    curve = fit_pull_curve(record.force_t, record.force[:, nodes], profile, guard, record.source)
+    u_keep = displacement_at_depth(record, profile.depth)
+    t_P = profile.pull_time
+    params, rms = solve_node_equations(record, nodes, u_keep, curve.asymptote * t_P, curve.start * t_P,
+                                       np.zeros_like(curve.start), curve.rate)
+    return Estimate(
+        params=params, method="paper_pull",
+        equations=_node_labels(nodes, record.mesh.geometry, ["eq.6 (pull only)", "eq.10 at t = 0"]),
+        residual_rms={"force_fit": curve.residual_rms, "equations": rms, "rate_rel_std": curve.rate_rel_std,
+                      "rate_x_pull_time": curve.rate * t_P},
+        message=f"relaxation rate {curve.rate:.4g} 1/s +- {100 * curve.rate_rel_std:.3g} % from the pull's curvature "
+                f"(rate x t_P = {curve.rate * t_P:.3g})",
+    )
+
+
+def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1) -> Estimate:
+    """Pull and keep, before release: eq. 6, 7 and 10 with ``u_keep`` as the markers show it.
+
+    The paper needs ``u_final`` because it reads the displacement after release; the
+    camera sees ``u_keep`` during the keep, and with it eq. 6 and 10 hold exactly in the
+    long- and the short-time case alike (eq. 17 with eq. 14 is eq. 10 in ``u_keep``).
+    """
+    profile = record.profile()
+    nodes = np.arange(record.mesh.cols) if nodes is None else np.asarray(nodes)
+    curves = fit_force_curves(record.force_t, record.force[:, nodes], profile, guard, record.source)
+    u_keep = displacement_during(record, profile.t_pull_end + guard, profile.t_keep_end - guard)
+    params, rms = _solve_equations(record, curves, profile, nodes, "long_time", u_keep)
+    relaxed = float(np.sum(np.abs(curves.keep_end)) / np.sum(np.abs(curves.keep_start)))
+    return Estimate(
+        params=params, method="paper_keep",
+        equations=_node_labels(nodes, record.mesh.geometry, ["eq.6", "eq.7", "eq.10 with u_keep"]),
+        residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std},
+        message=f"keep force relaxed to {100 * relaxed:.3g} % of its start; u_keep from the keep's marker frames",
+    )
 
 
 def deformation_error(simulated: np.ndarray, measured: np.ndarray, width: float, height: float) -> float:

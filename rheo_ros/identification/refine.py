@@ -84,6 +84,7 @@ def _vector(names: tuple[str, ...], params: dict[str, float]) -> np.ndarray:
 def refine(
     record: Record, initial: Estimate, model: Model | None = None,
     force_std: np.ndarray | None = None, marker_std: float | None = None,
+    fixed: dict[str, float] | None = None,
 ) -> Estimate:
     """Fit the whole record starting from ``initial`` (for example the paper's estimate).
 
@@ -99,7 +100,9 @@ def refine(
         force_std if force_std is not None else scale_f,
         marker_std if marker_std is not None else 1e-5,
     )
-    names = problem.names
+    fixed = fixed or {}
+    all_names = problem.names
+    names = tuple(n for n in all_names if n not in fixed)
     start = {n: initial.params.get(n, v) for n, v in {**model.parameters, "gamma": 0.3}.items() if n in names}
     p0 = _vector(names, start)
     positive = np.array([n != "gamma" for n in names])
@@ -107,7 +110,10 @@ def refine(
     # Positive parameters are fitted as log(p / p0): scale-free and sign-safe, which
     # lets MINPACK's Levenberg-Marquardt run without bounds.
     def unpack(x: np.ndarray) -> dict[str, float]:
-        return dict(zip(names, np.where(positive, p0 * np.exp(np.where(positive, x, 0.0)), x).tolist()))
+        # Clipped: an LM step on data that do not determine a parameter may ask for e^1000.
+        scale = np.exp(np.clip(np.where(positive, x, 0.0), -30.0, 30.0))
+        free = dict(zip(names, np.where(positive, p0 * scale, x).tolist()))
+        return {n: free[n] if n in free else float(fixed[n]) for n in all_names}
 
     def solve(x0: np.ndarray, tol: float):
         return least_squares(lambda x: problem.residuals(unpack(x)), x0, method="lm", xtol=tol, ftol=tol)
@@ -126,17 +132,23 @@ def refine(
         passes = 2
     params = unpack(sol.x)
     dof = max(sol.fun.size - len(names), 1)
-    chi2 = float(sol.fun @ sol.fun) / dof
+    cost = float(sol.fun @ sol.fun)
+    chi2 = cost / dof
     cov_x = np.linalg.pinv(sol.jac.T @ sol.jac) * chi2
     d = np.where(positive, _vector(names, params), 1.0)  # d p / d x
-    cov = cov_x * np.outer(d, d)
+    cov = np.zeros((len(all_names), len(all_names)))
+    free = [all_names.index(n) for n in names]
+    cov[np.ix_(free, free)] = cov_x * np.outer(d, d)
     rf, rm = problem.group_rms(params)
     return Estimate(
         params=params,
         method="whole_record",
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
         covariance=cov,
-        residual_rms={"force": float(np.sqrt(np.mean(rf**2))), "markers": rm, "reduced_chi2": chi2},
+        residual_rms={"force": float(np.sqrt(np.mean(rf**2))), "markers": rm, "reduced_chi2": chi2,
+                      "cost": cost, "marker_std": float(problem.marker_std),
+                      **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
+                          problem.force_std, (record.mesh.cols,)))}},
         message=f"{passes} pass(es); {sol.message}",
     )
 

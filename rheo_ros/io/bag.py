@@ -181,6 +181,25 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
     return BagContents(record, params, tactile_t, images, stage[:, 1])
 
 
+def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
+    """The measurement samples of a bag in recorded order, as the online estimator
+    takes them: ``("stage", t, depth)``, ``("image", t, pressures)``, ``("markers", t, xy)``
+    with ``t`` the header stamp (s).
+
+    Raises:
+        RecordError: unreadable bag or malformed message (names the topic and field).
+    """
+    path = Path(path)
+    decode = {STAGE_TOPIC: ("stage", lambda m: read_joint_state(m)[0]), TACTILE_TOPIC: ("image", read_pressure_image),
+              MARKERS_TOPIC: ("markers", read_marker_array)}
+    for topic, msg in _messages(path, decode):
+        stream, read = decode[topic]
+        try:
+            yield stream, stamp_ns(msg) * 1e-9, read(msg)
+        except MessageError as exc:
+            raise RecordError(f"{path}: {topic}: {exc}") from None
+
+
 def simulate_to_bag(setup: Setup, seed: int, out: str | Path) -> dict[str, int]:
     """Simulate a run and write the bag directly (same physics as the nodes, no DDS).
     Returns the message count per topic; a failure leaves no bag behind."""

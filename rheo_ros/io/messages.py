@@ -152,3 +152,56 @@ def read_pressure_image(msg: Any) -> np.ndarray:
 def read_marker_array(msg: Any) -> np.ndarray:
     """-> marker positions (N, 2) in m."""
     return np.array([[p.position.x, p.position.y] for p in msg.poses], dtype=float).reshape(-1, 2)
+
+
+# -- the package's own messages (rheo_ros_interfaces) ----------------------------------
+
+PHASE_TOPIC = "/rheo/phase"
+ESTIMATE_TOPIC = "/rheo/estimate"
+PHASE_TYPE = "rheo_ros_interfaces/msg/Phase"
+ESTIMATE_TYPE = "rheo_ros_interfaces/msg/Estimate"
+
+
+def _time(types: MessageTypes, t: float) -> Any:
+    ns = int(round(t * 1e9))
+    return types.lookup("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def phase_message(types: MessageTypes, event: Any) -> Any:
+    """``/rheo/phase`` from a ``PhaseEvent``: stamped with the sample that completed it."""
+    msg = types.lookup(PHASE_TYPE)(
+        header=_header(types, ""), experiment=event.experiment, name=event.name,
+        start=_time(types, event.t_start), end=_time(types, event.t_end), samples=event.samples,
+    )
+    _stamp(msg, int(round(event.t_found * 1e9)))
+    return msg
+
+
+def estimate_message(types: MessageTypes, update: Any) -> Any:
+    """``/rheo/estimate`` from an ``online.estimator.Update``."""
+    cov = update.covariance
+    msg = types.lookup(ESTIMATE_TYPE)(
+        header=_header(types, ""), experiment=update.experiment, phase=update.phase, model=update.model,
+        effects=list(update.effects), method=update.method, equations=list(update.equations),
+        names=list(update.names), values=types.float64s(update.values),
+        covariance=types.float64s(np.zeros(0) if cov is None else np.asarray(cov).ravel()),
+        rmse_force=float(update.rmse_force), samples=int(update.samples),
+        undetermined=list(update.undetermined), reasons=list(update.reasons), message=update.message,
+    )
+    _stamp(msg, int(round(update.stamp * 1e9)))
+    return msg
+
+
+def read_estimate(msg: Any) -> dict[str, Any]:
+    """An Estimate message as plain values: params, std (empty without covariance), the rest."""
+    names = list(msg.names)
+    values = np.asarray(msg.values, float)
+    cov = np.asarray(msg.covariance, float)
+    std = np.sqrt(np.diag(cov.reshape(len(names), len(names)))) if cov.size == len(names) ** 2 and names else None
+    return {
+        "stamp": stamp_ns(msg) * 1e-9, "experiment": int(msg.experiment), "phase": msg.phase, "model": msg.model,
+        "method": msg.method, "equations": list(msg.equations), "params": dict(zip(names, values.tolist())),
+        "std": {} if std is None else dict(zip(names, std.tolist())), "rmse_force": float(msg.rmse_force),
+        "samples": int(msg.samples), "undetermined": dict(zip(msg.undetermined, msg.reasons)),
+        "message": msg.message,
+    }

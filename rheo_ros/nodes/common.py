@@ -1,4 +1,5 @@
-"""What every node shares: parameter declaration from the package's table, startup."""
+"""What every node shares: parameter declaration from the package's table, startup,
+``--help``, diagnostics."""
 
 from __future__ import annotations
 
@@ -7,10 +8,14 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 
 from rheo_ros.params import DEFAULTS, PARAM_HELP, check_params
+
+LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
 
 def declare_all(node: Node) -> dict[str, Any]:
@@ -28,13 +33,37 @@ def declare_all(node: Node) -> dict[str, Any]:
     return check_params(values, f"node {node.get_name()}")
 
 
-def run_node(make: Callable[[], Node]) -> None:
-    """Init, spin until Ctrl-C or SIGTERM, clean up; bad parameters end in one line."""
+def node_help(name: str, summary: str) -> str:
+    """``--help`` text: usage, what the node does, and every parameter with its default."""
+    lines = [f"usage: {name} [--help] [--ros-args --params-file FILE] [--ros-args -p NAME:=VALUE ...]", "",
+             summary, "", "parameters (config/rheo_ros.yaml documents them all):"]
+    for key, default in DEFAULTS.items():
+        if key.startswith("effects."):
+            continue
+        lines.append(f"  {key} = {default!r}: {PARAM_HELP.get(key, '')}")
+    return "\n".join(lines)
+
+
+def wants_help(argv: list[str]) -> bool:
+    """``-h``/``--help`` before any ``--ros-args``: print help, start nothing."""
+    user = argv[1: argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
+    return any(a in ("-h", "--help") for a in user)
+
+
+def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Executor] = SingleThreadedExecutor
+             ) -> None:
+    """Init, spin until Ctrl-C, SIGTERM or the node shuts itself down, clean up; bad
+    parameters end in one line (exit 2); ``--help`` prints and starts nothing."""
+    if wants_help(sys.argv):
+        print(node_help(sys.argv[0].rsplit("/", 1)[-1], summary))
+        return
     rclpy.init(args=sys.argv)
     node = None
     try:
         node = make()
-        rclpy.spin(node)
+        spinner = executor()
+        spinner.add_node(node)
+        spinner.spin()
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
@@ -43,5 +72,15 @@ def run_node(make: Callable[[], Node]) -> None:
     finally:
         if node is not None:
             node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        rclpy.try_shutdown()
+
+
+def diagnostic_array(node: Node, level: str, message: str, values: dict[str, Any]) -> DiagnosticArray:
+    """One ``DiagnosticStatus`` for ``node``: level OK / WARN / ERROR, a reason a person
+    can act on, and the figures behind it."""
+    status = DiagnosticStatus(level=LEVELS[level], name=f"rheo_ros: {node.get_name()}", message=message,
+                              hardware_id="rheo_ros",
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = node.get_clock().now().to_msg()
+    return msg

@@ -23,11 +23,54 @@ from rheo_ros.io.messages import MessageTypes
 from rheo_ros.record import RecordError
 
 
+def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 5.0) -> tuple[dict | None, str]:
+    """The package's parameters as the nodes publishing ``topics`` run with them (their
+    parameter services), checked; ``(None, why)`` when no publisher serves them (a
+    driver that is not ours). The simulator, which makes the measurements, wins."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from rheo_ros.params import DEFAULTS, ParamsError, check_params
+
+    publishers: list[str] = []
+    deadline = time.monotonic() + timeout
+    while True:
+        infos = [i for topic in topics for i in node.get_publishers_info_by_topic(topic)]
+        # The graph learns a publisher's node name a moment after the publisher itself.
+        if not any(i.node_name == "_NODE_NAME_UNKNOWN_" for i in infos) or time.monotonic() > deadline:
+            break
+        rclpy.spin_once(node, timeout_sec=0.05)
+    for info in infos:
+        name = f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+        if info.node_name != "_NODE_NAME_UNKNOWN_" and name not in publishers:
+            publishers.append(name)
+    publishers.sort(key=lambda n: not n.endswith("/simulator"))
+    names = list(DEFAULTS)
+    for name in publishers:
+        client = AsyncParameterClient(node, name)
+        if not client.wait_for_services(timeout_sec=timeout):
+            continue
+        future = client.get_parameters(names)
+        rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
+        values = future.result().values if future.done() and future.result() else []
+        if len(values) != len(names) or any(v.type == 0 for v in values):   # 0: not set / not ours
+            continue
+        given = {n: rclpy.parameter.parameter_value_to_python(v) for n, v in zip(names, values)}
+        try:
+            return check_params(given, f"parameters of {name}"), f"parameters of {name}"
+        except ParamsError as exc:
+            return None, str(exc)
+    return None, "no publisher serves the rheo_ros parameters"
+
+
 def record(
     topics: Sequence[str], out: str | Path, params: dict[str, Any] | None, duration: float | None = None,
     discovery_timeout: float = 10.0,
 ) -> dict[str, int]:
     """Record ``topics`` until SIGINT/SIGTERM or ``duration`` s; return counts per topic.
+
+    Without ``params`` the bag stores the parameters of the nodes that publish the
+    topics (read from their parameter services), so that it can be analysed as is.
+    Prints ``recording`` once every topic's subscription has matched its publishers.
 
     Raises:
         RecordError: a topic did not appear on the graph within ``discovery_timeout`` s.
@@ -47,6 +90,10 @@ def record(
         missing = [t for t in topics if t not in types]
         if missing:
             raise RecordError(f"{', '.join(missing)}: not on the ROS graph after {discovery_timeout:g} s")
+        if params is None:
+            params, source = parameters_of_publishers(node, topics)
+            print(f"rheo record: storing {source}" if params else f"rheo record: no parameters stored ({source})",
+                  flush=True)
         counts = dict.fromkeys(topics, 0)
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         lookup = MessageTypes.rclpy().lookup
@@ -57,8 +104,15 @@ def record(
                     counts[topic] += 1
                 return on_message
 
-            for topic in topics:
-                node.create_subscription(lookup(types[topic]), topic, writer(topic), qos, raw=True)
+            subs = [node.create_subscription(lookup(types[topic]), topic, writer(topic), qos, raw=True)
+                    for topic in topics]
+            # Wait for the graph, not a fixed time: every subscription matched.
+            while not stop.is_set() and any(s.get_publisher_count() == 0 for s in subs):
+                if time.monotonic() > deadline:
+                    late = [t for t, s in zip(topics, subs) if s.get_publisher_count() == 0]
+                    raise RecordError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
+                rclpy.spin_once(node, timeout_sec=0.01)
+            print(f"recording {len(topics)} topic(s)", flush=True)
             end = None if duration is None else time.monotonic() + duration
             while not stop.is_set() and (end is None or time.monotonic() < end):
                 rclpy.spin_once(node, timeout_sec=0.05)

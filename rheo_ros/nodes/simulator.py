@@ -3,7 +3,9 @@
 Subscribes to ``/stage/joint_states``, steps the FE model with each stage sample and
 publishes ``/tactile/pressure`` and ``/markers/mesh`` at their rates. With
 ``simulator.clock`` it also drives ``/clock`` (run the stage with ``use_sim_time``):
-each stage sample moves the clock one stage period on, so the run goes as fast as
+once the stage's sample for the current clock time is in, the clock moves
+``simulator.clock_step`` stage periods on (the stage publishes every sample due by
+then), so the run goes as fast as
 the two nodes can exchange messages.
 """
 
@@ -47,6 +49,7 @@ class SimulatorNode(Node):
         self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, qos)
         self.t0: int | None = None
         self.drive_clock = params["simulator.clock"]
+        self.clock_step = params["simulator.clock_step"]
         if self.drive_clock:
             self.clock_publisher = self.create_publisher(Clock, "/clock", 10)
             self.clock_ns = 1_000_000_000  # sim time starts at 1 s (0 means "no time yet")
@@ -72,7 +75,7 @@ class SimulatorNode(Node):
             else:
                 self.markers.publish(self.encode_markers(ns, frame.data))
         if self.drive_clock and stamp >= self.clock_ns:
-            self.clock_ns = stamp + round(self.sim.step_s * 1e9)
+            self.clock_ns = stamp + round(self.clock_step * self.sim.step_s * 1e9)
             self.publish_clock()
 
     def publish_clock(self) -> None:
@@ -87,7 +90,8 @@ class SimulatorNode(Node):
 
 
 def main() -> None:
-    run_node(SimulatorNode)
+    run_node(SimulatorNode, "Stands in for the hardware: steps the FE model with each /stage/joint_states sample "
+                            "and publishes /tactile/pressure and /markers/mesh (and /clock with simulator.clock).")
 
 
 if __name__ == "__main__":

@@ -1,16 +1,34 @@
-"""Stage node: publishes ``/stage/joint_states`` from its motion source (``ros2 run rheo_ros stage``)."""
+"""Stage node: publishes ``/stage/joint_states`` from its motion source (``ros2 run rheo_ros stage``).
+
+With ``stage.autostart`` it runs the profile once at start; either way it serves the
+``/rheo/identify`` action (``rheo_ros_interfaces/action/Identify``): a planner asks for
+one push-keep-release of the object in front of it, gets feedback as each phase's
+estimate arrives on ``/rheo/estimate`` and the final estimate as its result. A cancel
+(or a shutdown mid-run) makes the stage retract at once (``MotionSource.abort``).
+"""
 
 from __future__ import annotations
 
+import time
+from dataclasses import replace
+
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rheo_ros_interfaces.action import Identify
+from rheo_ros_interfaces.msg import Estimate
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from rheo_ros.io.messages import STAGE_TOPIC, JointStateEncoder, MessageTypes
+from rheo_ros.io.messages import ESTIMATE_TOPIC, STAGE_TOPIC, JointStateEncoder, MessageTypes, stamp_ns
 from rheo_ros.nodes.common import declare_all, run_node
+from rheo_ros.nodes.estimator import LATCHED_QOS
 from rheo_ros.params import Setup
-from rheo_ros.stage import motion_source
+from rheo_ros.stage import MotionSource, motion_source
+
+IDENTIFY_ACTION = "/rheo/identify"
 
 
 class StageNode(Node):
@@ -20,27 +38,61 @@ class StageNode(Node):
         super().__init__("stage")
         params = declare_all(self)
         self.setup = Setup(params)
-        self.source = motion_source(params["stage.driver"], self.setup.profile)
+        self.driver = params["stage.driver"]
+        self.exit_when_done = params["stage.exit_when_done"]
         self.wait_for = params["stage.wait_for_subscribers"]
-        self.publisher = self.create_publisher(JointState, STAGE_TOPIC, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        self.publisher = self.create_publisher(JointState, STAGE_TOPIC,
+                                               QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         self.encode = JointStateEncoder(MessageTypes.rclpy())
+        self.source: MotionSource | None = None
         self.t0: int | None = None
+        self.now_ns = 0
         self.phase = ""
+        if params["stage.autostart"]:
+            self.start(self.setup.profile)
+        self.period_ns = round(1e9 / params["rates.stage"])
+        self.next_ns: int | None = None
         if self.get_parameter("use_sim_time").value:
-            # Simulated time: one sample per /clock tick (the simulator moves the clock
-            # one stage period per sample), stamped with the tick's time.
-            self.create_subscription(Clock, "/clock", lambda m: self.tick(m.clock.sec * 10**9 + m.clock.nanosec), 10)
+            # Simulated time: every sample due by the /clock tick's time, on the
+            # stage's own grid (the simulator moves the clock on once it has them).
+            self.create_subscription(Clock, "/clock", lambda m: self.on_clock(m.clock.sec * 10**9 + m.clock.nanosec),
+                                     10)
         else:
             self.create_timer(1.0 / params["rates.stage"], lambda: self.tick(self.get_clock().now().nanoseconds))
+        group = ReentrantCallbackGroup()
+        self.estimates: list[Estimate] = []
+        self.create_subscription(Estimate, ESTIMATE_TOPIC, self.estimates.append, LATCHED_QOS, callback_group=group)
+        self.action = ActionServer(self, Identify, IDENTIFY_ACTION, execute_callback=self.identify,
+                                   goal_callback=self.accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
+                                   callback_group=group)
         p = self.setup.profile
         self.get_logger().info(
             f"stage ready: {p.depth * 1e3:.3g} mm at {p.velocity * 1e3:.3g} mm/s, keep {p.keep_time:g} s, "
-            f"retract at {p.retract_speed * 1e3:.3g} mm/s ({params['stage.driver']})"
+            f"retract at {p.retract_speed * 1e3:.3g} mm/s ({self.driver}); "
+            + ("running the profile" if self.source else f"waiting for {IDENTIFY_ACTION} goals")
         )
+
+    def start(self, profile) -> None:
+        self.source, self.t0, self.phase = motion_source(self.driver, profile), None, ""
+
+    @property
+    def running(self) -> bool:
+        return self.source is not None and self.phase != "done"
+
+    def on_clock(self, now: int) -> None:
+        if self.next_ns is None or self.t0 is None or now < self.next_ns - self.period_ns:
+            self.next_ns = now          # not started (idle or waiting), or the clock went back: restart the grid
+        while self.next_ns <= now:
+            self.tick(self.next_ns)
+            self.next_ns += self.period_ns
 
     def tick(self, now: int) -> None:
         if now == 0:
             return  # simulated time has not started
+        self.now_ns = now
+        if self.source is None:
+            self.publisher.publish(self.encode(now, 0.0, 0.0))   # idle: at rest, off the specimen
+            return
         if self.t0 is None:
             if self.publisher.get_subscription_count() < self.wait_for:
                 return
@@ -53,10 +105,79 @@ class StageNode(Node):
             if sample.phase == "done":
                 self.source.close()
         self.publisher.publish(self.encode(now, sample.depth, sample.velocity))
+        if self.phase == "done" and self.exit_when_done and not self.action_active:
+            self.get_logger().info("profile done: exiting (stage.exit_when_done)")
+            self.context.try_shutdown()
+
+    action_active = False
+
+    # -- /rheo/identify ----------------------------------------------------------------
+
+    def accept_goal(self, goal: Identify.Goal) -> GoalResponse:
+        if self.running or self.action_active:
+            self.get_logger().warn(f"{IDENTIFY_ACTION}: rejected, a run is in progress")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def identify(self, handle) -> Identify.Result:
+        goal = handle.request
+        base = self.setup.profile
+        changes = {k: getattr(goal, k) for k in ("depth", "velocity", "keep_time") if getattr(goal, k) > 0}
+        result = Identify.Result()
+        try:
+            profile = replace(base, **changes)
+        except ValueError as exc:
+            handle.abort()
+            result.message = f"bad goal: {exc}"
+            return result
+        self.action_active = True
+        seen = len(self.estimates)
+        self.start(profile)
+        self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({', '.join(f'{k} {v:g}' for k, v in changes.items())})")
+        # Generous: the run's own length on the stage clock, then a minute for the fits.
+        deadline_ns = None
+        try:
+            while True:
+                time.sleep(0.02)
+                if self.t0 is not None and deadline_ns is None:
+                    deadline_ns = self.t0 + int((profile.t_end + 60.0) * 1e9)
+                if handle.is_cancel_requested:
+                    return self._cancel(handle, result)
+                for msg in self.estimates[seen:]:
+                    seen += 1
+                    if self.t0 is None or stamp_ns(msg) < self.t0:
+                        continue        # an estimate of an earlier run
+                    handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
+                    if msg.phase == "release" and msg.method == "whole_record":
+                        handle.succeed()
+                        return Identify.Result(success=True, message="identified", estimate=msg)
+                if deadline_ns is not None and self.now_ns > deadline_ns:
+                    handle.abort()
+                    result.message = "no final estimate on /rheo/estimate in time (is the estimator running?)"
+                    return result
+        finally:
+            self.action_active = False
+
+    def _cancel(self, handle, result: Identify.Result) -> Identify.Result:
+        t = (self.now_ns - self.t0) * 1e-9 if self.t0 is not None else 0.0
+        self.source.abort(t)
+        self.get_logger().warn(f"{IDENTIFY_ACTION}: cancelled at {t:.2f} s: retracting")
+        while self.phase != "done" and self.context.ok():
+            time.sleep(0.02)
+        handle.canceled()
+        result.message = "cancelled: the stage retracted to depth 0"
+        return result
+
+    def destroy_node(self) -> None:
+        if self.running and self.t0 is not None:
+            self.source.abort((self.now_ns - self.t0) * 1e-9)   # never leave the specimen loaded
+            self.source.close()
+        super().destroy_node()
 
 
 def main() -> None:
-    run_node(StageNode)
+    run_node(StageNode, "Publishes /stage/joint_states from its motion source: runs the stage.* profile at "
+                        "start (stage.autostart) and on each /rheo/identify goal.", MultiThreadedExecutor)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,277 @@
+"""Estimator node: E, c1, c2 and gamma updated as each phase completes (``ros2 run rheo_ros estimator``).
+
+Subscribes to the three measurement topics; publishes ``/rheo/estimate`` (the last one
+kept for late subscribers: transient-local), ``/diagnostics``, and the
+model's prediction of what is measured, for an overlay in Foxglove or PlotJuggler:
+
+- ``/rheo/measured/force`` and ``/rheo/prediction/force`` (``geometry_msgs/WrenchStamped``:
+  ``wrench.force.y`` = total bottom force, N, positive pressing), stamped with each
+  tactile frame's stamp;
+- ``/rheo/prediction/markers`` (``geometry_msgs/PoseArray``, like ``/markers/mesh``).
+
+The callbacks only convert messages and feed the core (``rheo_ros.online``); fits run
+in a worker thread so that no message waits for them. A bad message is counted and
+reported, never fatal.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import deque
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray, WrenchStamped
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rheo_ros_interfaces.msg import Estimate
+from sensor_msgs.msg import Image, JointState
+
+from rheo_ros.io.messages import (
+    ESTIMATE_TOPIC,
+    MARKERS_TOPIC,
+    STAGE_TOPIC,
+    TACTILE_TOPIC,
+    MarkerArrayEncoder,
+    MessageError,
+    MessageTypes,
+    estimate_message,
+    read_joint_state,
+    read_marker_array,
+    read_pressure_image,
+    stamp_ns,
+)
+from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
+from rheo_ros.online.estimator import Job, OnlineEstimator, Update
+from rheo_ros.params import Setup
+from rheo_ros.record import RecordError
+
+# Measurements: reliable, KEEP_ALL: a reader that falls behind holds the writer back
+# (a KEEP_ALL writer: rheo play) instead of having its queue overwritten; with a
+# KEEP_LAST writer (a live driver) the depth below is what the writer keeps.
+SENSOR_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+# The last estimate stays with the publisher for subscribers that join later.
+LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+PREDICTION_RATE = 10.0   # Hz of stamps, per predicted topic
+TOPICS = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
+
+
+class EstimatorNode(Node):
+    def __init__(self, name: str = "estimator") -> None:
+        super().__init__(name)
+        params = declare_all(self)
+        self.setup = Setup(params)
+        self.core = OnlineEstimator(self.setup, self.setup.segmenter_config(), self.setup.estimator_config())
+        self.stale_after = params["estimator.stale_after"]
+        self.types = MessageTypes.rclpy()
+        self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, SENSOR_QOS)
+        self.create_subscription(Image, TACTILE_TOPIC, self.on_tactile, SENSOR_QOS)
+        self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
+        self.estimates = self.create_publisher(Estimate, ESTIMATE_TOPIC, LATCHED_QOS)
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.measured_force = self.create_publisher(WrenchStamped, "/rheo/measured/force", 10)
+        self.predicted_force = self.create_publisher(WrenchStamped, "/rheo/prediction/force", 10)
+        self.predicted_markers = self.create_publisher(PoseArray, "/rheo/prediction/markers", 10)
+        self.encode_markers = MarkerArrayEncoder(self.types)
+        self.arrived = dict.fromkeys(TOPICS, None)        # wall time of the last message per stream
+        self.bad: dict[str, int] = dict.fromkeys(TOPICS, 0)
+        self.last_bad = ""
+        self.last_error = ""
+        self.latest: Update | None = None
+        self.open_params: dict[str, str] = {}
+        self.predicted_at: dict[str, float] = {}
+        self.updates = 0
+        self.latency = {"closed_form": deque(maxlen=1000), "whole_record": deque(maxlen=1000)}
+        self.started = time.monotonic()
+        self.jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
+        # Results go back to the executor's thread to be published: rclpy entities are
+        # used from one thread only (taking and publishing concurrently crashed rclpy).
+        self.outbox: queue.Queue[tuple[Update, float]] = queue.Queue()
+        self.results_ready = self.create_guard_condition(self.publish_results)
+        self.worker = threading.Thread(target=self.work, name="estimator-fits", daemon=True)
+        self.worker.start()
+        self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
+        self.get_logger().info(f"estimator ready: {params['geometry']}, markers {self.setup.mesh.rows} x "
+                               f"{self.setup.mesh.cols}, tactile {self.setup.tactile.rows} x {self.setup.tactile.cols}")
+
+    # -- measurements in ---------------------------------------------------------------
+
+    def _feed(self, stream: str, msg, decode, add) -> None:
+        arrival = time.perf_counter()
+        self.arrived[stream] = time.monotonic()
+        try:
+            t = stamp_ns(msg) * 1e-9
+            value = decode(msg)
+            events = add(t, value)
+        except (MessageError, RecordError, ValueError) as exc:
+            self.bad[stream] += 1
+            self.last_bad = f"{TOPICS[stream]}: {exc}"
+            self.get_logger().warn(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            return
+        for e in events:  # /rheo/phase is the segmenter node's; the same core finds the same phases
+            self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
+        self.dispatch(arrival)
+        if stream == "force":
+            self.publish_force(t, value)
+        elif stream == "markers":
+            self.publish_markers(t)
+
+    def silent_streams(self) -> list[str]:
+        """Streams with no message for ``estimator.stale_after`` s of wall time."""
+        now = time.monotonic()
+        return [s for s, a in self.arrived.items() if a is None or now - a > self.stale_after]
+
+    def dispatch(self, arrival: float) -> None:
+        """Hand the phases whose data are all in to the worker. Which samples a job uses
+        depends on stamps only; a silent topic stops holding phases back."""
+        for job in self.core.ready_jobs(self.silent_streams()):
+            self.jobs.put((job, arrival))
+
+    def on_stage(self, msg: JointState) -> None:
+        self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
+
+    def on_tactile(self, msg: Image) -> None:
+        self._feed("force", msg, self._nodal_forces, self.core.add_force)
+
+    def on_markers(self, msg: PoseArray) -> None:
+        self._feed("markers", msg, read_marker_array, self.core.add_markers)
+
+    def _nodal_forces(self, msg: Image) -> np.ndarray:
+        image = read_pressure_image(msg)
+        expected = (self.setup.tactile.rows, self.setup.tactile.cols)
+        if image.shape != expected:
+            raise MessageError(f"image {image.shape[0]} x {image.shape[1]}, parameters say {expected[0]} x {expected[1]}")
+        if not np.all(np.isfinite(image)):
+            raise MessageError("data: non-finite pressures")
+        return self.setup.tactile.nodal_forces(image[None])[0]
+
+    # -- fits (worker thread) ----------------------------------------------------------
+
+    def work(self) -> None:
+        while (item := self.jobs.get()) is not None:
+            job, arrival = item
+            e = job.event
+            try:
+                for update in self.core.run_job(job):
+                    self.outbox.put((update, arrival))
+                    self.results_ready.trigger()
+                    self.last_error = ""
+                if job.stale:
+                    self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
+                                       f"{', '.join(TOPICS[s] for s in job.stale)} (stale)")
+            except RecordError as exc:
+                self.last_error = f"experiment {e.experiment} {e.name}: {exc}"
+                self.get_logger().warn(self.last_error)
+            except Exception as exc:  # a fit must never take the node down
+                self.last_error = f"experiment {e.experiment} {e.name}: fit failed: {type(exc).__name__}: {exc}"
+                self.get_logger().error(self.last_error)
+
+    def publish_results(self) -> None:
+        while not self.outbox.empty():
+            update, arrival = self.outbox.get()
+            self.estimates.publish(estimate_message(self.types, update))
+            kind = "whole_record" if update.method == "whole_record" else "closed_form"
+            self.latency[kind].append(time.perf_counter() - arrival)
+            self.updates += 1
+            if not update.undetermined:
+                self.latest = update
+            self.open_params = dict(zip(update.undetermined, update.reasons))
+            self.log_update(update)
+
+    def log_update(self, u: Update) -> None:
+        std = u.std
+        parts = [f"{n} {v:.4g}" + (f" +- {std[n]:.2g}" if n in std and np.isfinite(std[n]) else "")
+                 for n, v in zip(u.names, u.values)]
+        self.get_logger().info(f"experiment {u.experiment} after {u.phase} ({u.method}): {', '.join(parts)}; "
+                               f"force RMS {u.rmse_force:.3g} N" + (f"; not determined: {', '.join(u.undetermined)}"
+                                                                    if u.undetermined else ""))
+
+    # -- model overlay -----------------------------------------------------------------
+
+    def _prediction_due(self, stream: str, t: float) -> bool:
+        """A prediction for this stamp: once an estimate of the current push exists, at
+        most ``PREDICTION_RATE`` per second of stamps (a model evaluation costs ~1 ms)."""
+        u = self.latest
+        if u is None or u.experiment != self.core.segmenter.experiment or self.core.segmenter.state == "rest":
+            return False
+        if t - self.predicted_at.get(stream, -np.inf) < 1.0 / PREDICTION_RATE - 1e-9:
+            return False
+        self.predicted_at[stream] = t
+        return True
+
+    def publish_force(self, t: float, forces: np.ndarray) -> None:
+        self.measured_force.publish(self._wrench(t, float(np.sum(forces))))
+        if self._prediction_due("force", t):
+            try:
+                total, _ = self.core.predict(self.latest, np.array([t]))
+                self.predicted_force.publish(self._wrench(t, float(total[0])))
+            except ValueError:
+                pass
+
+    def publish_markers(self, t: float) -> None:
+        if self._prediction_due("markers", t):
+            try:
+                _, positions = self.core.predict(self.latest, np.array([t]))
+                self.predicted_markers.publish(self.encode_markers(int(round(t * 1e9)), positions[0]))
+            except ValueError:
+                pass
+
+    @staticmethod
+    def _wrench(t: float, total: float) -> WrenchStamped:
+        msg = WrenchStamped()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(round(t * 1e9)), 1_000_000_000)
+        msg.header.frame_id = "tactile"
+        msg.wrench.force.y = total
+        return msg
+
+    # -- health ------------------------------------------------------------------------
+
+    def health(self) -> tuple[str, str, dict]:
+        """Level, reason and figures for ``/diagnostics``."""
+        now = time.monotonic()
+        seg = self.core.segmenter
+        reasons = []
+        for stream, topic in TOPICS.items():
+            if self.arrived[stream] is None:
+                if now - self.started > self.stale_after and any(self.arrived.values()):
+                    reasons.append(f"no message on {topic}")
+            elif now - self.arrived[stream] > self.stale_after and any(
+                    a is not None and now - a < self.stale_after for a in self.arrived.values()):
+                reasons.append(f"{topic} stale: silent for {now - self.arrived[stream]:.1f} s")
+        if self.last_error:
+            reasons.append(self.last_error)
+        if self.open_params:
+            reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
+        if any(self.bad.values()):
+            reasons.append(f"{sum(self.bad.values())} bad message(s), last: {self.last_bad}")
+        figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
+                   **{f"bad {TOPICS[s]}": n for s, n in self.bad.items()},
+                   **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},
+                   **{f"latency {k} {q} ms": f"{1e3 * np.percentile(v, int(q[1:])):.2f}"
+                      for k, v in self.latency.items() if v for q in ("p50", "p99")},
+                   **{f"latency {k} n": len(v) for k, v in self.latency.items()}}
+        if reasons:
+            return "WARN", "; ".join(reasons), figures
+        return "OK", f"experiment {seg.experiment}: {seg.state}", figures
+
+    def publish_diagnostics(self) -> None:
+        self.dispatch(time.perf_counter())
+        level, message, figures = self.health()
+        self.diagnostics.publish(diagnostic_array(self, level, message, figures))
+
+    def destroy_node(self) -> None:
+        self.jobs.put(None)
+        self.worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main() -> None:
+    run_node(EstimatorNode, "Identifies E, c1, c2 (and the Poisson ratio) from the stage, tactile and marker "
+                            "topics as each phase completes; publishes /rheo/estimate, /rheo/phase, /diagnostics "
+                            "and /rheo/prediction/*.")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,96 @@
+"""Segmenter node: contact, pull, keep and release found online (``ros2 run rheo_ros segmenter``).
+
+Subscribes to ``/stage/joint_states``, ``/tactile/pressure`` (contact) and
+``/markers/mesh`` (the end of release); publishes each completed phase on
+``/rheo/phase`` (the last one kept for late subscribers) and its health on
+``/diagnostics``. The core is ``rheo_ros.online.segmenter.PhaseSegmenter``, the one the
+estimator runs, so both find the same phases.
+"""
+
+from __future__ import annotations
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from rheo_ros_interfaces.msg import Phase
+from sensor_msgs.msg import Image, JointState
+
+from rheo_ros.io.messages import (
+    MARKERS_TOPIC,
+    PHASE_TOPIC,
+    STAGE_TOPIC,
+    TACTILE_TOPIC,
+    MessageError,
+    MessageTypes,
+    phase_message,
+    read_joint_state,
+    read_marker_array,
+    read_pressure_image,
+    stamp_ns,
+)
+from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
+from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
+from rheo_ros.params import Setup
+
+
+class SegmenterNode(Node):
+    def __init__(self) -> None:
+        super().__init__("segmenter")
+        params = declare_all(self)
+        self.setup = Setup(params)
+        self.core = PhaseSegmenter(self.setup.segmenter_config())
+        self.types = MessageTypes.rclpy()
+        self.phases = self.create_publisher(Phase, PHASE_TOPIC, LATCHED_QOS)
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, SENSOR_QOS)
+        self.create_subscription(Image, TACTILE_TOPIC, self.on_tactile, SENSOR_QOS)
+        self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
+        self.bad = 0
+        self.last_bad = ""
+        self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
+        self.get_logger().info("segmenter ready")
+
+    def _feed(self, topic: str, msg, convert) -> None:
+        try:
+            events = convert(stamp_ns(msg) * 1e-9, msg)
+        except (MessageError, ValueError) as exc:
+            self.bad += 1
+            self.last_bad = f"{topic}: {exc}"
+            self.get_logger().warn(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            return
+        for e in events:
+            self.publish(e)
+
+    def publish(self, e: PhaseEvent) -> None:
+        self.phases.publish(phase_message(self.types, e))
+        self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
+
+    def on_stage(self, msg: JointState) -> None:
+        self._feed(STAGE_TOPIC, msg, lambda t, m: self.core.add_stage(t, read_joint_state(m)[0]))
+
+    def on_tactile(self, msg: Image) -> None:
+        def total(t: float, m: Image) -> list[PhaseEvent]:
+            return self.core.add_force(t, float(self.setup.tactile.nodal_forces(read_pressure_image(m)[None]).sum()))
+        self._feed(TACTILE_TOPIC, msg, total)
+
+    def on_markers(self, msg: PoseArray) -> None:
+        self._feed(MARKERS_TOPIC, msg, lambda t, m: self.core.add_markers(t, read_marker_array(m)))
+
+    def publish_diagnostics(self) -> None:
+        c = self.core
+        figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad,
+                   **{f"out of order {k}": n for k, n in c.dropped.items()}}
+        if self.bad:
+            level, text = "WARN", f"{self.bad} bad message(s), last: {self.last_bad}"
+        else:
+            level, text = "OK", f"experiment {c.experiment}: {c.state}"
+        self.diagnostics.publish(diagnostic_array(self, level, text, figures))
+
+
+def main() -> None:
+    run_node(SegmenterNode, "Finds contact, pull, keep and release online from the stage, tactile and marker "
+                            "topics and publishes each completed phase on /rheo/phase.")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,363 @@
+"""Online segmentation: contact, pull, keep and release found from the data as it streams.
+
+Each stream is judged on its own samples, in header-stamp order, so the boundaries do
+not depend on how messages of different topics interleave on the wire:
+
+- stage depth: the start of a push (``confirm`` samples above the resting level), the
+  end of the pull (a flat run of ``plateau`` samples), the end of the keep (``confirm``
+  samples below the held level). Boundaries are placed as ``record.segment_stage``
+  places them offline: lines through the ramps, to a fraction of a sample.
+- tactile total force: contact (``confirm`` frames above the resting baseline).
+- marker mesh: the end of release, when the mesh has stopped moving within its noise
+  (or the next push starts).
+
+Repeated pushes are separate experiments, numbered from 1. Memory is bounded: the
+segmenter keeps the current push's stage samples and a short window of the rest.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from rheo_ros.experiment import StageProfile
+from rheo_ros.online.config import SegmenterConfig
+
+
+@dataclass(frozen=True)
+class PhaseEvent:
+    """A completed phase: ``name`` (contact | pull | keep | release) of push
+    ``experiment``, from ``t_start`` to ``t_end`` (s, header stamps), found at the
+    sample stamped ``t_found``; ``samples``: stage samples inside (marker frames for
+    release)."""
+
+    experiment: int
+    name: str
+    t_start: float
+    t_end: float
+    t_found: float
+    samples: int
+
+
+def _robust_spread(x: np.ndarray) -> float:
+    """Standard deviation from the median absolute deviation (outliers ignored)."""
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+
+
+class PhaseSegmenter:
+    """Feed samples with ``add_stage``, ``add_force`` and ``add_markers`` (each stream in
+    stamp order; late or repeated stamps are dropped and counted in ``dropped``); each
+    call returns the phases it completed."""
+
+    REST = 200          # resting samples kept for the baseline and its noise
+    HELD = 1000         # held samples used for the level and its noise
+    MIN_REST = 10       # resting tactile frames before contact can be judged
+    REFRESH = 10        # samples between refreshes of a baseline's median and spread
+    MAX_FRAMES = 20000  # marker frames kept at most (memory bound when the stage stream stops)
+
+    def __init__(self, config: SegmenterConfig | None = None) -> None:
+        self.config = config or SegmenterConfig()
+        self.experiment = 0
+        self.state = "rest"                 # rest | pull | keep | release
+        self.dropped = {"stage": 0, "force": 0, "markers": 0}
+        self._last = {"stage": -np.inf, "force": -np.inf, "markers": -np.inf}
+        self._rest: deque[float] = deque(maxlen=self.REST)
+        self._rest_seen = 0
+        self._rest_cache: tuple[int, float, float] | None = None
+        self._held_cache: tuple[int, float, float] | None = None
+        self._force_cache: tuple[int, float, float, float, float] | None = None
+        self._force_seen = 0
+        self._run: list[tuple[float, float]] = []     # samples confirming a change
+        self._ramp: list[tuple[float, float]] = []    # this push's pull samples
+        self._held: deque[float] = deque(maxlen=self.HELD)
+        self._held_count = 0
+        self.profile: StageProfile | None = None      # the current push, once its pull is known
+        self._t_pull: tuple[float, float] | None = None
+        self._t_release: float | None = None
+        self._level = 0.0
+        # contact (force stream)
+        self._force_rest: deque[tuple[float, float]] = deque(maxlen=self.REST)
+        self._force_run: list[float] = []
+        self._in_contact = False
+        self.contacts = 0
+        # release end (marker stream)
+        self._frames: deque[tuple[float, np.ndarray]] = deque(maxlen=self.MAX_FRAMES)
+        self._lo: np.ndarray | None = None            # range of each marker coordinate this push
+        self._hi: np.ndarray | None = None
+        self._pending_release: float | None = None   # release start not yet judged on markers
+        self._judged = -np.inf
+        self.release_reason = ""
+
+    # -- stage -------------------------------------------------------------------------
+
+    def _in_order(self, stream: str, t: float) -> bool:
+        if not t > self._last[stream]:
+            self.dropped[stream] += 1
+            return False
+        self._last[stream] = t
+        return True
+
+    def add_stage(self, t: float, depth: float) -> list[PhaseEvent]:
+        if not (self._in_order("stage", t) and np.isfinite(depth)):
+            return []
+        handler = {"rest": self._stage_rest, "pull": self._stage_pull, "keep": self._stage_keep,
+                   "release": self._stage_release}[self.state]
+        return handler(t, depth)
+
+    def _rest_tolerance(self) -> tuple[float, float]:
+        # Medians cost more than the rest of a sample's work: refreshed every
+        # REFRESH resting samples (a count of this stream's samples: deterministic).
+        if self._rest_cache is None or self._rest_seen - self._rest_cache[0] >= self.REFRESH:
+            rest = np.fromiter(self._rest, float)
+            base = float(np.median(rest)) if rest.size else 0.0
+            self._rest_cache = (self._rest_seen, base, max(6.0 * _robust_spread(rest), 0.05 * self.config.min_depth))
+        return self._rest_cache[1], self._rest_cache[2]
+
+    def _stage_rest(self, t: float, depth: float) -> list[PhaseEvent]:
+        base, tol = self._rest_tolerance()
+        if depth > base + tol:
+            self._run.append((t, depth))
+            if len(self._run) >= self.config.confirm:
+                self.state, self._ramp, self._run = "pull", list(self._run), []
+                self._sums, self._summed = np.zeros(5), 0
+                self.experiment += 1
+                self._base = base
+            return []
+        self._rest.extend(d for _, d in self._run)
+        self._rest_seen += len(self._run) + 1
+        self._run = []
+        self._rest.append(depth)
+        return []
+
+    def _stage_pull(self, t: float, depth: float) -> list[PhaseEvent]:
+        self._ramp.append((t, depth))
+        n = self.config.plateau
+        if len(self._ramp) < n + self.config.confirm:
+            return []
+        # The ramp's velocity from running sums over the samples before the last n
+        # (a line fit per sample would cost O(pull) each).
+        t_ref = self._ramp[0][0]
+        while self._summed < len(self._ramp) - n:
+            tr, dr = self._ramp[self._summed]
+            tr -= t_ref
+            self._sums += (1.0, tr, dr, tr * tr, tr * dr)
+            self._summed += 1
+        k, st, sd, stt, std = self._sums
+        if k < 2 or stt * k - st * st <= 0:
+            return []
+        velocity = (k * std - st * sd) / (k * stt - st * st)
+        tt, dd = np.array(self._ramp[-n:]).T
+        slope = np.polyfit(tt - tt[0], dd, 1)[0]
+        if not (velocity > 0 and abs(slope) < self.config.flat_slope * velocity):
+            return []
+        level = float(np.median(dd))
+        if level - self._base < self.config.min_depth:      # a twitch, not a push
+            self.state, self.experiment = "rest", self.experiment - 1
+            self._rest.extend(dd.tolist())
+            return []
+        t_all, d_all = np.array(self._ramp).T
+        inside = (d_all > 0.05 * level) & (d_all < 0.95 * level)
+        if inside.sum() < 2:
+            inside = t_all < tt[0]          # a ramp of a few samples: every one before the plateau
+        v, icept = np.polyfit(t_all[inside], d_all[inside], 1)
+        t_start, t_end = -icept / v, (level - icept) / v
+        self._level = level
+        self._held.clear()
+        self._held.extend(dd.tolist())
+        self._held_count, self._held_cache = n, None
+        self._last_held_t = float(tt[-1])
+        self._t_pull = (t_start, t_end)
+        self.profile = StageProfile(depth=level, velocity=float(v), keep_time=1e9, start_delay=float(t_start),
+                                    release_time=0.0)
+        self.state = "keep"
+        inside_pull = int(np.sum((t_all >= t_start) & (t_all <= t_end)))
+        return [PhaseEvent(self.experiment, "pull", float(t_start), float(t_end), t, inside_pull)]
+
+    def _held_tolerance(self) -> tuple[float, float]:
+        if self._held_cache is None or self._held_count - self._held_cache[0] >= self.REFRESH:
+            held = np.fromiter(self._held, float)
+            level = float(np.median(held))
+            self._held_cache = (self._held_count, level, max(1e-3 * level, 6.0 * _robust_spread(held)))
+        return self._held_cache[1], self._held_cache[2]
+
+    def _stage_keep(self, t: float, depth: float) -> list[PhaseEvent]:
+        level, tol = self._held_tolerance()
+        if depth >= level - tol:
+            self._held.extend(d for _, d in self._run)
+            self._held_count += len(self._run) + 1
+            self._run = []
+            self._held.append(depth)
+            self._last_held_t = t
+            return []
+        self._run.append((t, depth))
+        if len(self._run) < self.config.confirm:
+            return []
+        rt, rd = np.array(self._run).T
+        t_leave = float(rt[0])
+        on_ramp = (rd > 0.05 * level) & (rd < level - tol)
+        if on_ramp.sum() >= 2:
+            slope, icept = np.polyfit(rt[on_ramp], rd[on_ramp], 1)
+            if slope < 0:
+                t_leave = float(np.clip((level - icept) / slope, self._last_held_t, rt[0]))
+        t_pull_end = self._t_pull[1]
+        self._level = level
+        self.profile = StageProfile(depth=level, velocity=self.profile.velocity,
+                                    keep_time=max(t_leave - t_pull_end, 0.0), start_delay=self.profile.start_delay,
+                                    release_time=0.0, retract_speed=self._retract_speed(rt, rd, level, tol))
+        self._t_release = t_leave
+        self._pending_release = t_leave
+        self.state, self._run = "release", []
+        self._release_min = float(rd.min())
+        self._release_rest: deque[float] = deque(maxlen=self.REST)
+        self._judged = t_leave
+        events = [PhaseEvent(self.experiment, "keep", t_pull_end, t_leave, t, self._held_count)]
+        return events + self._judge_settled()
+
+    @staticmethod
+    def _retract_speed(t: np.ndarray, d: np.ndarray, level: float, tol: float) -> float:
+        on_ramp = (d > 0.05 * level) & (d < level - tol)
+        if on_ramp.sum() >= 2:
+            slope = np.polyfit(t[on_ramp], d[on_ramp], 1)[0]
+            if slope < 0:
+                return float(-slope)
+        return float("inf")
+
+    def _stage_release(self, t: float, depth: float) -> list[PhaseEvent]:
+        # The stage is back near rest once it is below 5 % of the push; a new push is
+        # a confirmed rise from there.
+        self._release_min = min(self._release_min, depth)
+        if self._release_min > 0.05 * self._level:
+            return []
+        base = float(np.median(np.fromiter(self._release_rest, float))) if self._release_rest else depth
+        spread = _robust_spread(np.fromiter(self._release_rest, float))
+        if depth > base + max(6.0 * spread, 0.05 * self.config.min_depth) and len(self._release_rest) >= 3:
+            self._run.append((t, depth))
+            if len(self._run) >= self.config.confirm:
+                # The next push started before the mesh settled: the release ends here.
+                run, t_next = self._run, self._run[0][0]
+                events = self._end_release(self._last_frame_before(t_next), t, "next push")
+                self._rest.clear()
+                self._rest.extend(self._release_rest)
+                for tr, dr in run:
+                    events += self._stage_rest(tr, dr)
+                return events
+            return []
+        self._release_rest.extend(d for _, d in self._run)
+        self._run = []
+        self._release_rest.append(depth)
+        return []
+
+    # -- tactile ------------------------------------------------------------------------
+
+    def add_force(self, t: float, total: float) -> list[PhaseEvent]:
+        """Total bottom force (N) of a tactile frame."""
+        if not (self._in_order("force", t) and np.isfinite(total)):
+            return []
+        if len(self._force_rest) < self.MIN_REST and not self._in_contact:
+            self._force_rest.append((t, total))    # no baseline yet: nothing to compare with
+            return []
+        # The resting baseline may drift (sensor_drift): a line through it, not a level;
+        # refreshed every REFRESH resting frames.
+        if self._force_cache is None or self._force_seen - self._force_cache[0] >= self.REFRESH:
+            rt, rf = np.array(self._force_rest).T
+            slope, icept = np.polyfit(rt - rt[-1], rf, 1)
+            spread = _robust_spread(rf - (icept + slope * (rt - rt[-1])))
+            self._force_cache = (self._force_seen, float(rt[-1]), float(slope), float(icept), spread)
+        _, t_ref, slope, icept, spread = self._force_cache
+        base = icept + slope * (t - t_ref)
+        threshold = base + max(self.config.contact_force, 6.0 * spread)
+        if not self._in_contact:
+            if total > threshold:
+                self._force_run.append(t)
+                if len(self._force_run) >= self.config.confirm:
+                    self._in_contact, self.contacts = True, self.contacts + 1
+                    t0, self._force_run = self._force_run[0], []
+                    return [PhaseEvent(self.contacts, "contact", t0, t0, t, 0)]
+                return []
+            self._force_run = []
+            self._force_rest.append((t, total))
+            self._force_seen += 1
+        elif total <= threshold:
+            self._force_run.append(t)
+            if len(self._force_run) >= self.config.confirm:
+                self._in_contact, self._force_run = False, []
+        else:
+            self._force_run = []
+        return []
+
+    # -- markers ------------------------------------------------------------------------
+
+    def add_markers(self, t: float, positions: np.ndarray) -> list[PhaseEvent]:
+        positions = np.asarray(positions, float).ravel()
+        if not (self._in_order("markers", t) and np.all(np.isfinite(positions))):
+            return []
+        self._frames.append((t, positions))
+        if self._lo is None or self._lo.shape != positions.shape:
+            self._lo, self._hi = positions.copy(), positions.copy()
+        np.minimum(self._lo, positions, out=self._lo)
+        np.maximum(self._hi, positions, out=self._hi)
+        if self.state == "release" and self._pending_release is not None:
+            return self._judge_settled()
+        # Frames are kept until the stage stream has passed them by a window: the stage
+        # decides when a release starts, and it may run far behind this stream (a
+        # backlog); every frame after a release must still be judged.
+        self._trim(min(t, self._last["stage"]) - self.config.settle_window)
+        return []
+
+    def _trim(self, t_keep: float) -> None:
+        while self._frames and self._frames[0][0] < t_keep:
+            self._frames.popleft()
+
+    def _last_frame_before(self, t: float) -> float:
+        before = [tf for tf, _ in self._frames if tf < t]
+        return before[-1] if before else (self._t_release if self._t_release is not None else t)
+
+    def _judge_settled(self) -> list[PhaseEvent]:
+        """Release ends at the first frame whose window (``settle_window`` s back, all
+        after the stage left) shows the mesh still within its noise. Every frame is
+        judged in stamp order, however the streams interleave."""
+        W, t_release = self.config.settle_window, self._pending_release
+        frames = list(self._frames)
+        times = np.array([tf for tf, _ in frames])
+        peak = float(np.max(self._hi - self._lo)) if self._lo is not None else 0.0
+        for j in np.flatnonzero(times > self._judged):
+            t_now = float(times[j])
+            self._judged = t_now
+            if t_now - t_release > self.config.max_release:
+                return self._end_release(t_now, t_now, f"still moving after {self.config.max_release:g} s")
+            if t_now - W < t_release:
+                continue
+            inside = (times >= t_now - W - 1e-9) & (times <= t_now)
+            if inside.sum() < 6:
+                continue
+            tw = times[inside]
+            X = np.array([frames[i][1] for i in np.flatnonzero(inside)])
+            tc = tw - tw.mean()
+            sxx = float(tc @ tc)
+            Xc = X - X.mean(axis=0)
+            slope = tc @ Xc / sxx
+            resid = Xc - np.outer(tc, slope)
+            sigma = float(np.sqrt(np.sum(resid**2) / ((tw.size - 2) * X.shape[1])))
+            span = float(tw[-1] - tw[0])
+            motion = float(np.sqrt(np.mean(slope**2))) * span
+            noise_motion = sigma / np.sqrt(sxx) * span
+            if motion < max(2.0 * noise_motion, self.config.settle_fraction * peak):
+                return self._end_release(t_now, t_now, "settled")
+        self._trim(self._judged - W - 1e-6)
+        return []
+
+    def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
+        t_release = self._t_release
+        n = sum(1 for tf, _ in self._frames if t_release < tf <= t_end)
+        self.profile = StageProfile(depth=self.profile.depth, velocity=self.profile.velocity,
+                                    keep_time=self.profile.keep_time, start_delay=self.profile.start_delay,
+                                    release_time=max(t_end - t_release, 0.0),
+                                    retract_speed=self.profile.retract_speed)
+        self.release_reason = why
+        self.state, self._pending_release, self._t_pull, self._run = "rest", None, None, []
+        last = self._frames[-1][1] if self._frames else None
+        self._lo = None if last is None else last.copy()
+        self._hi = None if last is None else last.copy()
+        return [PhaseEvent(self.experiment, "release", t_release, t_end, t_found, n)]

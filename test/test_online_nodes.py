@@ -1,0 +1,229 @@
+"""Segmenter, estimator and the identify action over real DDS, in separate processes."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.action import ActionClient
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rheo_ros_interfaces.action import Identify
+from rheo_ros_interfaces.msg import Estimate, Phase
+from sensor_msgs.msg import Image
+
+from rheo_ros.io.bag import simulate_to_bag
+from rheo_ros.io.messages import read_estimate
+from rheo_ros.online.estimator import estimate_bag
+from rheo_ros.params import Setup, load_params, params_yaml
+
+BIN = Path(sys.executable).parent
+SHORT_RUN = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 6.0, "stage.release_time": 30.0}
+LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def ros_env(slot: int) -> dict:
+    """Own domain per test process and slot (within 0-232), localhost only."""
+    domain = 201 + (os.getpid() % 6) * 5 + slot
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+
+
+class Graph:
+    """Node processes of one test and an in-process probe node on their domain."""
+
+    def __init__(self, slot: int, tmp: Path) -> None:
+        self.env, self.tmp, self.procs = ros_env(slot), tmp, {}
+        os.environ.update({k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("probe", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        log = (self.tmp / f"{name}.log").open("w")
+        self.procs[name] = subprocess.Popen([str(BIN / name), *args], env=self.env, stdout=log,
+                                            stderr=subprocess.STDOUT)
+        return self.procs[name]
+
+    def spin_until(self, done, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while not done():
+            assert time.monotonic() < deadline, f"{what} within {timeout} s; logs: " + " | ".join(
+                f"{p.name}: {p.read_text()[-1500:]}" for p in self.tmp.glob("*.log"))
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in self.procs.values():
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.context)
+
+
+@pytest.fixture(scope="module")
+def short_bag(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("short")
+    params = {**load_params(None), **SHORT_RUN}
+    simulate_to_bag(Setup(params), 3, tmp / "bag")
+    (tmp / "params.yaml").write_text(params_yaml(params))
+    return tmp
+
+
+@pytest.fixture(scope="module")
+def replay(short_bag, tmp_path_factory):
+    """A bag replayed over DDS into the segmenter and estimator nodes, twice."""
+    runs = []
+    for k in range(2):
+        tmp = tmp_path_factory.mktemp(f"replay{k}")
+        g = Graph(k, tmp)
+        estimates, phases = [], []
+        g.node.create_subscription(Estimate, "/rheo/estimate", lambda m: estimates.append(read_estimate(m)), LATCHED)
+        g.node.create_subscription(Phase, "/rheo/phase", phases.append, LATCHED)
+        try:
+            params = ["--ros-args", "--params-file", str(short_bag / "params.yaml")]
+            g.start("estimator", *params)
+            g.start("segmenter", *params)
+            play = subprocess.run([str(BIN / "rheo"), "play", str(short_bag / "bag"), "--rate", "5",
+                                   "--wait-for-subscribers", "2"], env=g.env, capture_output=True, text=True,
+                                  timeout=120)
+            assert play.returncode == 0, play.stderr
+            g.spin_until(lambda: len(estimates) >= 6 and len(phases) >= 4, 60, "6 estimates and 4 phases")
+            late = []
+            late_node = rclpy.create_node("late", context=g.context)
+            late_node.create_subscription(Estimate, "/rheo/estimate", late.append, LATCHED)
+            g.executor.add_node(late_node)
+            g.spin_until(lambda: late, 10, "the last estimate for a late subscriber")
+            time.sleep(0.5)
+            g.executor.spin_once(timeout_sec=0.1)
+            runs.append({"estimates": estimates, "phases": phases, "late": late,
+                         "estimator_log": (tmp / "estimator.log").read_text()})
+        finally:
+            g.close()
+    offline = estimate_bag(str(short_bag / "bag"))
+    return runs, offline
+
+
+def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
+    """Header stamps only: the same bag gives the offline core's numbers to 1e-9, twice."""
+    runs, (_, updates, errors) = replay
+    assert errors == []
+    for run in runs:
+        got = run["estimates"]
+        assert [(e["phase"], e["method"]) for e in got] == [(u.phase, u.method) for u in updates]
+        for e, u in zip(got, updates):
+            a = np.array(list(e["params"].values()))
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(u.values))
+            ok = ~np.isnan(a)
+            np.testing.assert_allclose(a[ok], u.values[ok], rtol=1e-9)
+            assert e["samples"] == u.samples and abs(e["stamp"] - u.stamp) < 1e-9
+            assert e["undetermined"] == dict(zip(u.undetermined, u.reasons))
+            if u.covariance is not None:
+                np.testing.assert_allclose([e["std"][n] for n in u.names if np.isfinite(e["std"][n])],
+                                           [u.std[n] for n in u.names if np.isfinite(u.std[n])], rtol=1e-6)
+
+
+def test_segmenter_node_publishes_each_phase_as_the_core_finds_it(replay):
+    runs, (phases, _, _) = replay
+    for run in runs:
+        got = [(p.experiment, p.name, round(p.start.sec + p.start.nanosec * 1e-9, 6)) for p in run["phases"]]
+        assert got == [(e.experiment, e.name, round(e.t_start, 6)) for e in phases]
+
+
+def test_a_late_subscriber_gets_the_last_estimate(replay):
+    runs, (_, updates, _) = replay
+    for run in runs:
+        assert len(run["late"]) == 1
+        last = read_estimate(run["late"][0])
+        assert (last["phase"], last["method"]) == (updates[-1].phase, updates[-1].method)
+
+
+def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag, tmp_path):
+    g = Graph(2, tmp_path)
+    statuses = []
+    g.node.create_subscription(DiagnosticArray, "/diagnostics",
+                               lambda m: statuses.extend(s for s in m.status if s.name.endswith("estimator")), 10)
+    bad = g.node.create_publisher(Image, "/tactile/pressure", 10)
+    try:
+        est = g.start("estimator", "--ros-args", "--params-file", str(short_bag / "params.yaml"),
+                      "-p", "estimator.stale_after:=1.0")
+        play = subprocess.Popen([str(BIN / "rheo"), "play", str(short_bag / "bag"), "--topics",
+                                 "/stage/joint_states", "--wait-for-subscribers", "1"], env=g.env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        g.spin_until(lambda: any("no message on /tactile/pressure" in s.message for s in statuses), 30,
+                     "a WARN naming the missing topic")
+        assert any(s.level == DiagnosticStatus.WARN for s in statuses)
+        g.spin_until(lambda: bad.get_subscription_count() > 0, 10, "the estimator subscribing")
+        msg = Image(height=6, width=32, encoding="rgb8", step=96, data=bytes(6 * 96))
+        for _ in range(3):
+            bad.publish(msg)
+        g.spin_until(lambda: any("bad message" in s.message and "encoding" in s.message for s in statuses), 20,
+                     "a WARN on the bad messages")
+        assert est.poll() is None, "the estimator died on a bad message"
+        play.send_signal(signal.SIGINT)
+        play.wait(timeout=10)
+    finally:
+        g.close()
+
+
+def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path):
+    """Stage waiting for goals, simulator on /clock, estimator: a goal gives feedback per
+    update and the final whole-record estimate; a cancelled goal retracts the stage."""
+    params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True}
+    (tmp_path / "params.yaml").write_text(params_yaml(params))
+    g = Graph(3, tmp_path)
+    depths = []
+    from sensor_msgs.msg import JointState
+
+    g.node.create_subscription(JointState, "/stage/joint_states", lambda m: depths.append(m.position[0]), 100)
+    client = ActionClient(g.node, Identify, "/rheo/identify")
+    try:
+        args = ["--ros-args", "--params-file", str(tmp_path / "params.yaml")]
+        g.start("estimator", *args)
+        g.start("simulator", *args)
+        g.start("stage", *args, "-p", "use_sim_time:=true")
+        g.spin_until(lambda: client.server_is_ready(), 30, "the identify action server")
+        feedback = []
+        goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
+        g.spin_until(goal.done, 10, "goal accepted")
+        handle = goal.result()
+        assert handle.accepted
+        result = handle.get_result_async()
+        g.spin_until(result.done, 120, "the identification result")
+        r = result.result().result
+        assert r.success, r.message
+        assert (r.estimate.phase, r.estimate.method) == ("release", "whole_record")
+        phases = [f.feedback.phase for f in feedback]
+        assert {"pull", "keep", "release"} <= set(phases)
+        assert phases == sorted(phases, key=["pull", "keep", "release"].index)
+        final = read_estimate(r.estimate)
+        for k, v in {"E": 3.33e4, "c1": 1.69e5, "gamma": 0.332}.items():
+            assert abs(final["params"][k] - v) < 0.02 * v, (k, final["params"][k])
+        # A second goal, cancelled once the pull has been identified.
+        feedback.clear()
+        goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
+        g.spin_until(goal.done, 10, "second goal accepted")
+        handle = goal.result()
+        g.spin_until(lambda: feedback, 60, "feedback after the pull")
+        cancel = handle.cancel_goal_async()
+        g.spin_until(cancel.done, 10, "cancel accepted")
+        result = handle.get_result_async()
+        g.spin_until(result.done, 60, "the cancelled result")
+        assert not result.result().result.success and "retracted" in result.result().result.message
+        depths.clear()
+        g.spin_until(lambda: len(depths) > 5, 10, "stage samples after the cancel")
+        assert max(depths[-5:]) == 0.0
+        assert "cancelled" in (tmp_path / "stage.log").read_text()
+    finally:
+        client.destroy()
+        g.close()
