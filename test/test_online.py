@@ -194,3 +194,22 @@ def test_a_keep_far_shorter_than_the_relaxation_time_leaves_c2_undetermined():
     assert "c2" in last.undetermined and np.isnan(last.params["c2"])
     reason = dict(zip(last.undetermined, last.reasons))["c2"]
     assert "keep of at least" in reason
+
+
+def test_a_release_the_closed_form_cannot_solve_still_gets_the_whole_record_fit():
+    """A 2 mm push held 2 s: the final displacement is too small for eq. 14-17 (no
+    solution of the right sign); the release update is the fit of all the data, started
+    from the keep's fit, and says why."""
+    setup, run, force = simulated({"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2.0,
+                                   "stage.release_time": 30.0})
+    msgs = messages(run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers)
+    _, updates, errors = estimate_stream(OnlineEstimator(setup), msgs)
+    assert errors == []
+    last = updates[-1]
+    assert (last.phase, last.method) == ("release", "whole_record")
+    assert last.message.startswith("closed form failed")
+    assert set(last.undetermined) == {"E", "c2"}       # a 2 s keep shows no relaxation
+    # Within 1 %: forces this small sit near the tactile dead band, which the fit's
+    # noise model ignores (its std is not calibrated here: the honest-identification issue).
+    assert abs(last.params["c1"] / TRUTH["c1"] - 1) < 0.01
+    assert abs(last.params["gamma"] / TRUTH["gamma"] - 1) < 0.01

@@ -212,8 +212,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path):
         # A second goal, cancelled once the pull has been identified.
         feedback.clear()
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
-        g.spin_until(goal.done, 10, "second goal accepted")
+        g.spin_until(goal.done, 10, "second goal answered")
         handle = goal.result()
+        assert handle.accepted, "the first run should be over once it returned its estimate"
         g.spin_until(lambda: feedback, 60, "feedback after the pull")
         cancel = handle.cancel_goal_async()
         g.spin_until(cancel.done, 10, "cancel accepted")

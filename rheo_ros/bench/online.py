@@ -1,6 +1,6 @@
 """``rheo bench online``: the estimator node under a stream of experiments over DDS.
 
-A short push-keep-release (4 mm at 1 mm/s, keep 6 s, 30 s of release) is simulated
+A short push-keep-release (2 mm at 2 mm/s, keep 2 s, 30 s of release) is simulated
 into a bag; an estimator node runs as its own process; ``rheo play --loop N`` replays
 the bag N times (stamps shifted each pass) at ``rate`` times real time. Measured:
 
@@ -25,7 +25,7 @@ from typing import Any
 from rheo_ros.io.bag import simulate_to_bag
 from rheo_ros.params import Setup, load_params
 
-SHORT_RUN = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 6.0, "stage.release_time": 30.0}
+SHORT_RUN = {"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2.0, "stage.release_time": 30.0}
 
 
 def _cpu_seconds(pid: int) -> float:

@@ -149,6 +149,10 @@ class StageNode(Node):
                         continue        # an estimate of an earlier run
                     handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
                     if msg.phase == "release" and msg.method == "whole_record":
+                        # Identified: the stage is off the specimen (the release has
+                        # settled); the rest of the profile's recording time is not needed.
+                        self.source.close()
+                        self.source, self.phase = None, "done"
                         handle.succeed()
                         return Identify.Result(success=True, message="identified", estimate=msg)
                 if deadline_ns is not None and self.now_ns > deadline_ns:

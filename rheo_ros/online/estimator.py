@@ -134,6 +134,7 @@ class OnlineEstimator:
         self.push_start: float | None = None
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
         self.forward = QuasiStaticFE(self.mesh)
+        self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
 
     # -- streams ---------------------------------------------------------------------
 
@@ -251,10 +252,23 @@ class OnlineEstimator:
         e, rec = job.event, job.record
         if rec is None:
             raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
-        closed = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
-        updates = [self._update(e, rec, closed)]
+        updates = []
+        try:
+            start = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
+            updates.append(self._update(e, rec, start))
+            failed = ""
+        except RecordError as exc:
+            # The closed form has no solution (a push too small, a release not settled):
+            # the fit of the data so far still runs, from this push's previous fit.
+            previous = self._fits.get(e.experiment)
+            if previous is None or not self.config.refine:
+                raise
+            start, failed = previous, f"closed form failed ({exc}); fit started from the previous update"
         if self.config.refine:
-            fit = refine(rec, closed)
+            fit = refine(rec, start)
+            if failed:
+                fit = replace(fit, message=f"{failed}; {fit.message}")
+            self._fits = {e.experiment: fit}
             updates.append(self._update(e, rec, fit, self._relaxation_unseen(rec, fit)))
         return updates
 
