@@ -14,6 +14,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,20 @@ import numpy as np
 from rheo_ros.params import load_params, params_yaml
 
 NODES = ("simulator", "segmenter", "estimator", "stage")
+
+
+def stop_processes(procs: Iterable[subprocess.Popen], timeout: float = 10.0) -> None:
+    """Ctrl-C to every node still running (they clean up: the stage retracts), then wait;
+    kill what does not end within ``timeout`` s."""
+    procs = list(procs)
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            p.kill()
 
 
 def _format(update: dict) -> str:
@@ -108,13 +123,6 @@ def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
                   "the three-element fit is then misspecified)")
         return 0
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        stop_processes(procs.values())
         node.destroy_node()
         rclpy.try_shutdown()

@@ -74,13 +74,18 @@ def test_segmenter_is_robust_to_encoder_noise_and_stamp_jitter():
     assert abs(events["keep"].t_end - offline.t_keep_end) <= 0.01
 
 
-def test_repeated_pushes_are_separate_experiments():
+@pytest.mark.parametrize("stage_lag", [0.0, 40.0])
+def test_repeated_pushes_are_separate_experiments(stage_lag):
+    """Also with the stage stream 40 s behind the others (a backlog on the busiest topic):
+    the mesh settles before the stage stream has left the release."""
     setup, run, force = simulated(SHORT_RUN)
     msgs = []
     for k in range(3):
         msgs += messages(run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers,
                          offset=k * (run.stage_t[-1] + 1.0))
+    msgs.sort(key=lambda m: m[1] + (stage_lag if m[0] == "stage" else 0.0))
     events = feed_segmenter(PhaseSegmenter(), msgs)
+    events.sort(key=lambda e: (e.experiment, ["contact", "pull", "keep", "release"].index(e.name)))
     assert [(e.experiment, e.name) for e in events if e.name != "contact"] == [
         (k, n) for k in (1, 2, 3) for n in ("pull", "keep", "release")]
     pulls = [e for e in events if e.name == "pull"]
@@ -190,10 +195,16 @@ def test_a_keep_far_shorter_than_the_relaxation_time_leaves_c2_undetermined():
     msgs = messages(run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers)
     _, updates, _ = estimate_stream(OnlineEstimator(setup), msgs)
     assert updates, "no update at all"
-    last = [u for u in updates if u.method == "whole_record"][-1]
-    assert "c2" in last.undetermined and np.isnan(last.params["c2"])
-    reason = dict(zip(last.undetermined, last.reasons))["c2"]
+    keep = [u for u in updates if u.method == "whole_record" and u.phase == "keep"][-1]
+    assert "c2" in keep.undetermined and np.isnan(keep.params["c2"])
+    reason = dict(zip(keep.undetermined, keep.reasons))["c2"]
     assert "keep of at least" in reason
+    # After release the permanent set (the dashpot's share) bounds c2 again: either
+    # reported within 3 std of the truth, or still undetermined.
+    final = updates[-1]
+    assert final.phase == "release"
+    if "c2" not in final.undetermined:
+        assert abs(final.params["c2"] - TRUTH["c2"]) < 3 * final.std["c2"]
 
 
 def test_a_release_the_closed_form_cannot_solve_still_gets_the_whole_record_fit():

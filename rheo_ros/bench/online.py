@@ -14,7 +14,6 @@ the bag N times (stamps shifted each pass) at ``rate`` times real time. Measured
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from rheo_ros.demo import stop_processes
 from rheo_ros.io.bag import simulate_to_bag
 from rheo_ros.params import Setup, load_params
 
@@ -64,6 +64,7 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
         if msg.phase == "release" and msg.method == "whole_record":
             finals.append(time.monotonic())
             rss.append(_rss_mb(est.pid))
+            print(f"  experiment {msg.experiment}: final estimate; estimator RSS {rss[-1]:.1f} MB", flush=True)
 
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for s in msg.status:
@@ -102,11 +103,7 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
             "diagnostics": status.get("message", ""),
         }
     finally:
-        est.send_signal(signal.SIGINT)
-        try:
-            est.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            est.kill()
+        stop_processes([est])
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -194,7 +194,8 @@ class EstimatorNode(Node):
         """A prediction for this stamp: once an estimate of the current push exists, at
         most ``PREDICTION_RATE`` per second of stamps (a model evaluation costs ~1 ms)."""
         u = self.latest
-        if u is None or u.experiment != self.core.segmenter.experiment or self.core.segmenter.state == "rest":
+        if u is None or u.experiment != self.core.segmenter.experiment or self.core.segmenter.state in ("rest",
+                                                                                                          "settled"):
             return False
         if t - self.predicted_at.get(stream, -np.inf) < 1.0 / PREDICTION_RATE - 1e-9:
             return False

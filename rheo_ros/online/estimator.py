@@ -142,7 +142,7 @@ class OnlineEstimator:
         if not self._store("stage", t, np.float64(depth)):
             return []
         events = self.segmenter.add_stage(t, depth)
-        if self.segmenter.state != "rest" and self.push_start is None:
+        if self.segmenter.state in ("pull", "keep", "release") and self.push_start is None:
             self.push_start = t
         return self._took(events)
 

@@ -60,7 +60,8 @@ class PhaseSegmenter:
     def __init__(self, config: SegmenterConfig | None = None) -> None:
         self.config = config or SegmenterConfig()
         self.experiment = 0
-        self.state = "rest"                 # rest | pull | keep | release
+        self.state = "rest"                 # rest | pull | keep | release | settled
+        self._settled_at = -np.inf
         self.dropped = {"stage": 0, "force": 0, "markers": 0}
         self._last = {"stage": -np.inf, "force": -np.inf, "markers": -np.inf}
         self._rest: deque[float] = deque(maxlen=self.REST)
@@ -102,6 +103,16 @@ class PhaseSegmenter:
     def add_stage(self, t: float, depth: float) -> list[PhaseEvent]:
         if not (self._in_order("stage", t) and np.isfinite(depth)):
             return []
+        if self.state == "settled":
+            # The mesh settled (marker stream) at a stamp the stage stream has not
+            # reached yet: until then the stage is still in that release.
+            if t <= self._settled_at:
+                self._release_rest.append(depth)
+                return []
+            self.state = "rest"
+            self._rest.clear()
+            self._rest.extend(self._release_rest)
+            self._rest_cache = None
         handler = {"rest": self._stage_rest, "pull": self._stage_pull, "keep": self._stage_keep,
                    "release": self._stage_release}[self.state]
         return handler(t, depth)
@@ -356,7 +367,9 @@ class PhaseSegmenter:
                                     release_time=max(t_end - t_release, 0.0),
                                     retract_speed=self.profile.retract_speed)
         self.release_reason = why
-        self.state, self._pending_release, self._t_pull, self._run = "rest", None, None, []
+        # The stage stream goes back to rest once it passes the release's end.
+        self.state, self._settled_at = ("settled", t_end) if why != "next push" else ("rest", t_end)
+        self._pending_release, self._t_pull, self._run = None, None, []
         last = self._frames[-1][1] if self._frames else None
         self._lo = None if last is None else last.copy()
         self._hi = None if last is None else last.copy()
