@@ -22,7 +22,7 @@ before it are kept.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -242,8 +242,9 @@ class OnlineEstimator:
         except RecordError:
             return None
 
-    def run_job(self, job: Job) -> list[Update]:
-        """The updates of a completed phase (closed form, then the fit of the data so far).
+    def run_job(self, job: Job) -> Iterator[Update]:
+        """The updates of a completed phase, each as soon as it is computed: the closed
+        form (milliseconds), then the fit of the data so far (a tenth of a second or more).
 
         Raises:
             RecordError: the phase cannot be identified (too short, missing data, a
@@ -252,10 +253,8 @@ class OnlineEstimator:
         e, rec = job.event, job.record
         if rec is None:
             raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
-        updates = []
         try:
             start = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
-            updates.append(self._update(e, rec, start))
             failed = ""
         except RecordError as exc:
             # The closed form has no solution (a push too small, a release not settled):
@@ -264,13 +263,14 @@ class OnlineEstimator:
             if previous is None or not self.config.refine:
                 raise
             start, failed = previous, f"closed form failed ({exc}); fit started from the previous update"
+        else:
+            yield self._update(e, rec, start)
         if self.config.refine:
             fit = refine(rec, start)
             if failed:
                 fit = replace(fit, message=f"{failed}; {fit.message}")
             self._fits = {e.experiment: fit}
-            updates.append(self._update(e, rec, fit, self._relaxation_unseen(rec, fit)))
-        return updates
+            yield self._update(e, rec, fit, self._relaxation_unseen(rec, fit))
 
     # A slower relaxation (c2 this many times larger) that fits the data as well means the
     # data set no upper bound on c2: its std from the local curvature would mislead.
@@ -301,7 +301,8 @@ class OnlineEstimator:
         profile = rec.profile()
         rate = values[0] / (values[1] + values[2])
         seen = min(rec.force_t[-1], profile.t_keep_end) - profile.t_pull_start
-        longer = f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it"
+        longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
+                  else "a keep long enough for the force to relax visibly determines it")
         cov = est.covariance
         if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
             undetermined["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
