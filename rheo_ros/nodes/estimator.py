@@ -245,6 +245,8 @@ class EstimatorNode(Node):
             reasons.append(self.last_error)
         if self.open_params:
             reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
+        if self.core.dropped_pushes:
+            reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):
             reasons.append(f"{sum(self.bad.values())} bad message(s), last: {self.last_bad}")
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,

@@ -135,6 +135,7 @@ class OnlineEstimator:
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
         self.forward = QuasiStaticFE(self.mesh)
         self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
+        self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
 
     # -- streams ---------------------------------------------------------------------
 
@@ -191,7 +192,7 @@ class OnlineEstimator:
                 # Bounded memory: a push this long is given up (reported by the caller).
                 self.segmenter = PhaseSegmenter(self.segmenter.config)
                 self.push_start, self.pending = None, []
-                self.dropped_push = True
+                self.dropped_pushes += 1
                 keep_from = latest - margin
         for s in self.streams.values():
             if s.t and s.t[0] < keep_from:
