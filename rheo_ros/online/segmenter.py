@@ -18,7 +18,7 @@ segmenter keeps the current push's stage samples and a short window of the rest.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -206,17 +206,18 @@ class PhaseSegmenter:
         if len(self._run) < self.config.confirm:
             return []
         rt, rd = np.array(self._run).T
-        t_leave = float(rt[0])
+        t_leave, retract_speed = float(rt[0]), float("inf")
         on_ramp = (rd > 0.05 * level) & (rd < level - tol)
         if on_ramp.sum() >= 2:
+            # One line through the retraction: where it leaves the level, and its speed.
             slope, icept = np.polyfit(rt[on_ramp], rd[on_ramp], 1)
             if slope < 0:
                 t_leave = float(np.clip((level - icept) / slope, self._last_held_t, rt[0]))
+                retract_speed = float(-slope)
         t_pull_end = self._t_pull[1]
         self._level = level
-        self.profile = StageProfile(depth=level, velocity=self.profile.velocity,
-                                    keep_time=max(t_leave - t_pull_end, 0.0), start_delay=self.profile.start_delay,
-                                    release_time=0.0, retract_speed=self._retract_speed(rt, rd, level, tol))
+        self.profile = replace(self.profile, depth=level, keep_time=max(t_leave - t_pull_end, 0.0),
+                               release_time=0.0, retract_speed=retract_speed)
         self._t_release = t_leave
         self._pending_release = t_leave
         self.state, self._run = "release", []
@@ -225,15 +226,6 @@ class PhaseSegmenter:
         self._judged = t_leave
         events = [PhaseEvent(self.experiment, "keep", t_pull_end, t_leave, t, self._held_count)]
         return events + self._judge_settled()
-
-    @staticmethod
-    def _retract_speed(t: np.ndarray, d: np.ndarray, level: float, tol: float) -> float:
-        on_ramp = (d > 0.05 * level) & (d < level - tol)
-        if on_ramp.sum() >= 2:
-            slope = np.polyfit(t[on_ramp], d[on_ramp], 1)[0]
-            if slope < 0:
-                return float(-slope)
-        return float("inf")
 
     def _stage_release(self, t: float, depth: float) -> list[PhaseEvent]:
         # The stage is back near rest once it is below 5 % of the push; a new push is
@@ -362,10 +354,7 @@ class PhaseSegmenter:
     def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
         t_release = self._t_release
         n = sum(1 for tf, _ in self._frames if t_release < tf <= t_end)
-        self.profile = StageProfile(depth=self.profile.depth, velocity=self.profile.velocity,
-                                    keep_time=self.profile.keep_time, start_delay=self.profile.start_delay,
-                                    release_time=max(t_end - t_release, 0.0),
-                                    retract_speed=self.profile.retract_speed)
+        self.profile = replace(self.profile, release_time=max(t_end - t_release, 0.0))
         self.release_reason = why
         # The stage stream goes back to rest once it passes the release's end.
         self.state, self._settled_at = ("settled", t_end) if why != "next push" else ("rest", t_end)
