@@ -102,7 +102,7 @@ def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
         final = None
         while final is None:
             rclpy.spin_once(node, timeout_sec=0.1)
-            final = next((u for u in updates if u["phase"] == "release" and u["method"] == "whole_record"), None)
+            final = next((u for u in updates if u["final"]), None)
             dead = [n for n, p in procs.items() if p.poll() is not None]
             if dead or time.monotonic() - start > timeout:
                 why = f"{', '.join(dead)} exited" if dead else f"no final estimate after {timeout:g} s"

@@ -17,14 +17,15 @@ from typing import Any
 import yaml
 
 from rheo_ros.experiment import StageProfile
-from rheo_ros.fe.mesh import Mesh
+from rheo_ros.fe.mesh import Boundary, Mesh
+from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
 DEFAULTS: dict[str, Any] = {
-    "geometry": "plane_fe",
+    "geometry": "plane_fe", "boundary.bottom": "bonded", "boundary.top": "bonded", "mesh.refine": 1,
     "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
     "tactile.rows": 6, "tactile.cols": 32, "tactile.noise": 100.0, "tactile.resolution": 10.0,
     "tactile.threshold": 300.0,
@@ -51,7 +52,11 @@ DEFAULTS: dict[str, Any] = {
 
 
 PARAM_HELP: dict[str, str] = {
-    "geometry": "uniaxial (1D bar, paper Sec. II-III) or plane_fe (2D FE mesh on the marker grid, Sec. IV)",
+    "geometry": "uniaxial (1D bar, paper Sec. II-III) or plane_fe (2D plane-stress FE of the face, Sec. IV)",
+    "boundary.bottom": "plane_fe: bonded (no slip on the sensor) or frictionless",
+    "boundary.top": "plane_fe: bonded (no slip against the stage) or frictionless",
+    "mesh.refine": "identification's FE mesh: each marker-grid element split refine x refine (1: the paper's "
+                   "mesh on the markers, nodal forces; more: segment forces integrated over their extent)",
     "specimen.width": "m, along x", "specimen.height": "m, along y (pushing axis)",
     "specimen.thickness": "m, along z",
     "tactile.rows": "cells along z", "tactile.cols": "cells along x",
@@ -210,6 +215,7 @@ class Setup:
             raise ParamsError(f"{source}: simulator.seed and the sensor noises must not be negative")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
+            self.mesh.refined(p["mesh.refine"])
             if self.gamma is not None:
                 self.mesh.stiffness(self.gamma)
         except (ValueError, KeyError) as exc:
@@ -219,7 +225,14 @@ class Setup:
     def mesh(self) -> Mesh:
         p = self.params
         return Mesh.build(p["geometry"], p["specimen.width"], p["specimen.height"], p["specimen.thickness"],
-                          rows=p["markers.rows"], cols=p["markers.cols"])
+                          rows=p["markers.rows"], cols=p["markers.cols"],
+                          boundary=Boundary(p["boundary.bottom"], p["boundary.top"]))
+
+    def forward_model(self) -> QuasiStaticFE:
+        """The identification's forward model: the marker grid refined ``mesh.refine``
+        times; beyond 1, each tactile segment's force integrated over its columns."""
+        refine = self.params["mesh.refine"]
+        return QuasiStaticFE(self.mesh, refine, self.tactile.segment_edges if refine > 1 else None)
 
     @property
     def tactile(self) -> TactileArray:

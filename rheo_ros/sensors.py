@@ -42,6 +42,13 @@ class TactileArray:
         node_x = np.linspace(0.0, self.width, self.nodes)
         return np.argmin(np.abs(centres[:, None] - node_x[None]), axis=1)
 
+    @cached_property
+    def segment_edges(self) -> np.ndarray:
+        """x (m) where each segment begins, and the face's end (segments + 1)."""
+        pitch = self.width / self.cols
+        changes = np.flatnonzero(np.diff(self.segment)) + 1
+        return np.concatenate([[0.0], changes * pitch, [self.width]])
+
     @property
     def cell_area(self) -> float:
         return (self.width / self.cols) * (self.depth / self.rows)

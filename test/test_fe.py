@@ -5,8 +5,8 @@ import pytest
 
 from rheo_ros.experiment import StageProfile, sample_times
 from rheo_ros.fe.dynamic import DynamicFE
-from rheo_ros.fe.mesh import Mesh, lame_per_unit_modulus
-from rheo_ros.fe.quasistatic import QuasiStaticFE, elastic_shape
+from rheo_ros.fe.mesh import Boundary, Mesh, lame_per_unit_modulus
+from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Model, RelaxationBranch
 from rheo_ros.models.elements import three_element
 from rheo_ros.models.response import respond
@@ -75,7 +75,7 @@ def test_force_jump_at_end_of_pull_is_eq10(short_case):
 
 def test_plane_stiffness_has_rigid_modes_and_symmetry():
     mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
-    K = mesh.stiffness(0.3)
+    K = mesh.stiffness(0.3).toarray()
     np.testing.assert_allclose(K, K.T, atol=1e-12 * np.abs(K).max())
     w = np.linalg.eigvalsh(K)
     assert np.sum(np.abs(w) < 1e-10 * w.max()) == 3         # two translations, one rotation
@@ -91,22 +91,34 @@ def test_plane_stress_lame_constants():
         lame_per_unit_modulus(0.5)
 
 
-def test_plane_patch_uniform_compression():
-    """A bar free to expand sideways (only y held top and bottom): uniform stress E*strain."""
-    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
-    gamma = 0.3
-    K = mesh.stiffness(gamma)
-    held = np.zeros(mesh.n_dofs, bool)
-    held[mesh.y_dofs(mesh.bottom)] = held[mesh.y_dofs(mesh.top)] = True
-    held[0] = True  # pin one x dof against sliding
-    u = np.zeros(mesh.n_dofs)
-    u[mesh.y_dofs(mesh.top)] = -0.001
-    free = ~held
-    u[free] = np.linalg.solve(K[np.ix_(free, free)], -K[np.ix_(free, held)] @ u[held])
-    total = (K @ u)[mesh.y_dofs(mesh.bottom)].sum()
-    assert total == pytest.approx(1.0 * 0.001 / 0.08 * 0.08 * 0.0125, rel=1e-10)
-    ux = u[0::2].reshape(5, 5)
-    assert ux[0, -1] - ux[0, 0] == pytest.approx(gamma * 0.001 / 0.08 * 0.08, rel=1e-10)
+@pytest.mark.parametrize("refine", [1, 3])
+def test_frictionless_block_is_the_analytic_uniaxial_solution(refine):
+    """Both faces frictionless: uniform uniaxial stress (plane stress), exact on any Q4
+    mesh. Total force E A d / H, lateral expansion gamma d W / H, each tactile segment
+    the uniform pressure times its width, markers read by interpolation."""
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("frictionless", "frictionless"))
+    gamma, depth = 0.3, 0.001
+    edges = np.array([0.0, 0.01, 0.03, 0.05, 0.07, 0.08])
+    shape = QuasiStaticFE(mesh, refine, edges).shape(gamma)
+    pressure = 1.0 * 1.0 / 0.08          # Pa per unit E per unit depth
+    np.testing.assert_allclose(shape.bottom_force, pressure * np.diff(edges) * 0.0125, rtol=1e-10)
+    x, y = mesh.nodes[:, 0], mesh.nodes[:, 1]
+    np.testing.assert_allclose(shape.displacement[:, 1] * depth, -depth * y / 0.08, atol=1e-15)
+    np.testing.assert_allclose(shape.displacement[:, 0] * depth, gamma * depth * (x - 0.04) / 0.08, atol=1e-15)
+
+
+def test_bonded_faces_restrain_the_lateral_expansion():
+    """Bonded top and bottom: the block bulges at mid-height only and is stiffer than
+    the frictionless one (the faces cannot expand); the segments are symmetric."""
+    free = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("frictionless", "frictionless"))
+    bonded = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    edges = np.array([0.0, 0.01, 0.03, 0.05, 0.07, 0.08])
+    s_free, s_bonded = (QuasiStaticFE(m, 2, edges).shape(0.332) for m in (free, bonded))
+    assert s_bonded.bottom_force.sum() > 1.01 * s_free.bottom_force.sum()
+    np.testing.assert_allclose(s_bonded.bottom_force, s_bonded.bottom_force[::-1], rtol=1e-10)
+    ux = s_bonded.displacement[:, 0].reshape(5, 5)
+    np.testing.assert_allclose(ux[[0, -1]], 0.0, atol=1e-15)           # bottom and top rows held
+    assert ux[2, -1] > 0 > ux[2, 0]                                      # bulges sideways
 
 
 def test_plane_dynamic_fe_matches_quasistatic_limit(plane_case):
@@ -118,14 +130,6 @@ def test_plane_dynamic_fe_matches_quasistatic_limit(plane_case):
     np.testing.assert_allclose(rec.force[ok], pred.force[ok], atol=1e-5 * peak)
     near = away_from(rec.marker_t, [p.t_start for p in prof.phases], 0.15)
     np.testing.assert_allclose(rec.marker_displacement[near], pred.displacement[near], atol=1e-5 * prof.depth)
-
-
-def test_plane_shape_is_symmetric_and_bulges():
-    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
-    shape = elastic_shape(mesh, 0.332)
-    np.testing.assert_allclose(shape.bottom_force, shape.bottom_force[::-1], rtol=1e-10)
-    mid = shape.displacement.reshape(5, 5, 2)[2]
-    assert mid[0, 0] < 0 < mid[-1, 0]                          # left edge out left, right out right
 
 
 def _release_run(retract_speed):

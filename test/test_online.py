@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rheo_ros.io.bag import read_bag
+from rheo_ros.io.bag import bag_samples, read_bag
+from rheo_ros.online.config import EstimatorConfig
 from rheo_ros.online.estimator import OnlineEstimator, estimate_bag, estimate_stream
 from rheo_ros.online.segmenter import PhaseSegmenter
 from rheo_ros.params import Setup, load_params
@@ -116,6 +117,7 @@ def test_estimator_updates_after_each_phase_with_closed_form_then_fit(clean_upda
     assert [(u.phase, u.method) for u in updates] == [
         ("pull", "paper_pull"), ("pull", "whole_record"), ("keep", "paper_keep"), ("keep", "whole_record"),
         ("release", "paper_short_time"), ("release", "whole_record")]
+    assert [u.final for u in updates] == [False] * 5 + [True]
     # Each update uses only the samples up to its phase's end.
     stamps = [u.stamp for u in updates]
     assert stamps == sorted(stamps) and updates[0].stamp < 21.1 and updates[2].stamp < 69.1
@@ -224,3 +226,18 @@ def test_a_release_the_closed_form_cannot_solve_still_gets_the_whole_record_fit(
     # noise model ignores (its std is not calibrated here: the honest-identification issue).
     assert abs(last.params["c1"] / TRUTH["c1"] - 1) < 0.01
     assert abs(last.params["gamma"] / TRUTH["gamma"] - 1) < 0.01
+
+
+def test_without_refinement_the_release_closed_form_is_the_final_update(clean_updates):
+    """``estimator.refine: false``: the closed forms alone, the release's marked final
+    (what the stage's /rheo/identify action waits for), with the same values as with
+    refinement (the closed form does not depend on the fits)."""
+    bag = str(BAGS / "clean_short_keep")
+    setup = Setup(read_bag(bag).params)
+    _, updates, errors = estimate_stream(OnlineEstimator(setup, config=EstimatorConfig(refine=False)),
+                                         bag_samples(bag))
+    assert errors == []
+    assert [(u.phase, u.final) for u in updates] == [("pull", False), ("keep", False), ("release", True)]
+    closed = [u for u in clean_updates[1] if u.method != "whole_record"]
+    for mine, theirs in zip(updates, closed):
+        np.testing.assert_array_equal(mine.values, theirs.values)

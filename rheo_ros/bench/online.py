@@ -9,6 +9,8 @@ the bag N times (stamps shifted each pass) at ``rate`` times real time. Measured
   p50 and p99 as the node reports them on ``/diagnostics``;
 - the node's CPU share while idle (no data, 10 s);
 - its resident memory after each experiment (flat = bounded buffers).
+
+CPU and memory count the node's fit worker process too.
 """
 
 from __future__ import annotations
@@ -29,15 +31,31 @@ SHORT_RUN = {"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2
 
 
 def _cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """CPU time of a process and its children, s."""
+    total = 0
+    for p in _process_tree(pid):
+        fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _process_tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (the estimator's fit worker)."""
+    pids = [pid]
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            pids += _process_tree(int(child))
+    return pids
 
 
 def _rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
+    """Resident memory of a process and its children, MB."""
+    total = 0.0
+    for p in _process_tree(pid):
+        for line in Path(f"/proc/{p}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                total += int(line.split()[1]) / 1024
+    return total
 
 
 def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[str, Any]:
@@ -61,7 +79,7 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
     status: dict[str, str] = {}
 
     def on_estimate(msg: Estimate) -> None:
-        if msg.phase == "release" and msg.method == "whole_record":
+        if msg.final:
             finals.append(time.monotonic())
             rss.append(_rss_mb(est.pid))
             print(f"  experiment {msg.experiment}: final estimate; estimator RSS {rss[-1]:.1f} MB", flush=True)
@@ -77,7 +95,10 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
     node.create_subscription(Estimate, "/rheo/estimate", on_estimate, qos)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     try:
-        time.sleep(3.0)                       # start-up (imports, DDS discovery)
+        ready = time.monotonic() + 60.0       # start-up (imports, worker processes, DDS discovery)
+        while not status and time.monotonic() < ready:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        time.sleep(2.0)
         rss_start = _rss_mb(est.pid)
         c0, t0 = _cpu_seconds(est.pid), time.monotonic()
         time.sleep(idle)

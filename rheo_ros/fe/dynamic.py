@@ -14,7 +14,7 @@ moves linearly and the contact does not change, so the model is linear
 time-invariant with a linear drive and is propagated exactly by a matrix
 exponential (stiffness from small masses costs nothing).
 
-Contact with the stage is one-sided: the top nodes follow the stage (and stick to
+Contact with the stage is one-sided: the top nodes follow the stage (bonded: stick to
 it in x) while it presses; when the stage retracts faster than the specimen
 recovers, the pressing force reaches zero, the specimen lets go at that instant
 (found by bisection inside the step) and recovers freely.
@@ -54,8 +54,8 @@ class DynamicFE:
     """Dynamic FE model of the specimen pushed by the stage, stepped by stage samples.
 
     Args:
-        mesh: specimen mesh (bottom nodes held; top nodes follow the stage in y and
-            stick to it in x while in contact).
+        mesh: specimen mesh (bottom nodes on the sensor, top nodes following the stage
+            in y while in contact; in x as the mesh's boundary conditions say).
         rheology: the material's element (same operator on every dof).
         gamma: Poisson ratio (``plane_fe`` only).
         density: kg/m^3, lumped at the nodes.
@@ -67,7 +67,7 @@ class DynamicFE:
         density: float = 1.5e3, omega: float = 1.0e3,
     ) -> None:
         self.mesh, self.gamma, self.omega = mesh, gamma, omega
-        self.K = mesh.stiffness(gamma)
+        self.K = mesh.stiffness(gamma).toarray()   # small meshes: dense, for the matrix exponential
         self.mass = mesh.lumped_mass(density)
         self.ss = StateSpace.of(rheology)
         n, nq = mesh.n_dofs, self.ss.A.shape[0]
@@ -94,12 +94,8 @@ class DynamicFE:
         if contact in self._modes:
             return self._modes[contact]
         mesh, n, w = self.mesh, self.n, self.omega
-        held = np.zeros(n, bool)
-        held[mesh.node_dofs(mesh.bottom)] = True
-        target = np.zeros(n)  # multiplier of g(t) in each held dof's target
-        if contact == "held":
-            held[mesh.node_dofs(mesh.top)] = True
-            target[self._top_y] = 1.0
+        held, down = mesh.supports(stage_contact=contact == "held")
+        target = -down  # multiplier of g(t) (the top's target, m, y up) in each held dof's target
         F = np.zeros((n, self.size))  # rheological nodal force
         F[:, self.iv] = self.ss.D * self.K
         for k, sl in enumerate(self.ix):

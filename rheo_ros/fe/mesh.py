@@ -9,7 +9,17 @@ Two geometries (contract, parameter ``geometry``):
 
 Node order is the marker order of the contract: row-major, bottom row first, left
 to right. The stiffness is split as in eq. 18-19, ``K = lambda^g K_lambda + mu^g K_mu``
-(per unit E), so the Poisson ratio enters through two scalars only.
+(per unit E), so the Poisson ratio enters through two scalars only; it is assembled
+sparse, so that a mesh refined far below the marker grid (``refined``) stays cheap.
+
+Boundary conditions (``Boundary``) are stated choices: each face is ``bonded`` (no
+slip against the sensor / the stage) or ``frictionless`` (free to slide). With both
+faces frictionless the block could slide sideways as a whole; the bottom node at the
+centre is then held in x (exact for the symmetric push).
+
+What the sensors see of a mesh: marker displacements by bilinear interpolation at the
+markers' positions (``interpolation``), and each tactile segment's force as the
+bottom pressure integrated over the segment's extent (``segment_integrals``).
 """
 
 from __future__ import annotations
@@ -18,8 +28,23 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+import scipy.sparse as sparse
 
 GEOMETRIES = ("uniaxial", "plane_fe")
+CONTACTS = ("bonded", "frictionless")
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """How the bottom face meets the sensor and the top face the stage (``plane_fe``)."""
+
+    bottom: str = "bonded"
+    top: str = "bonded"
+
+    def __post_init__(self) -> None:
+        for face in ("bottom", "top"):
+            if getattr(self, face) not in CONTACTS:
+                raise ValueError(f"boundary.{face}: {getattr(self, face)!r}, expected one of {', '.join(CONTACTS)}")
 
 
 def lame_per_unit_modulus(gamma: float) -> tuple[float, float]:
@@ -46,10 +71,12 @@ class Mesh:
     rows: int
     cols: int
     nodes: np.ndarray = field(repr=False)
+    boundary: Boundary = Boundary()
 
     @classmethod
     def build(
-        cls, geometry: str, width: float, height: float, thickness: float, rows: int = 5, cols: int = 5
+        cls, geometry: str, width: float, height: float, thickness: float, rows: int = 5, cols: int = 5,
+        boundary: Boundary = Boundary(),
     ) -> Mesh:
         """``rows`` x ``cols`` nodes over the face (``uniaxial``: ``rows`` nodes, one column)."""
         if geometry not in GEOMETRIES:
@@ -63,7 +90,18 @@ class Mesh:
         ys = np.linspace(0.0, height, rows)
         xs = np.array([width / 2]) if cols == 1 else np.linspace(0.0, width, cols)
         X, Y = np.meshgrid(xs, ys)
-        return cls(geometry, width, height, thickness, rows, cols, np.column_stack([X.ravel(), Y.ravel()]))
+        return cls(geometry, width, height, thickness, rows, cols, np.column_stack([X.ravel(), Y.ravel()]), boundary)
+
+    def refined(self, factor: int) -> Mesh:
+        """The same specimen with every element split ``factor`` x ``factor`` (the 1D bar:
+        ``factor`` times as many elements); ``factor`` 1 is this mesh."""
+        if factor < 1:
+            raise ValueError(f"mesh refinement {factor}: must be a positive integer")
+        if factor == 1:
+            return self
+        cols = self.cols if self.geometry == "uniaxial" else (self.cols - 1) * factor + 1
+        return Mesh.build(self.geometry, self.width, self.height, self.thickness,
+                          (self.rows - 1) * factor + 1, cols, self.boundary)
 
     @property
     def dofs_per_node(self) -> int:
@@ -89,6 +127,26 @@ class Mesh:
         d = self.dofs_per_node
         return (nodes[:, None] * d + np.arange(d)).ravel()
 
+    def supports(self, stage_contact: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Held dofs (bool, n_dofs) and each held dof's displacement per unit stage depth:
+        the bottom on the sensor, the top pushed down by 1 m while the stage touches it."""
+        held = np.zeros(self.n_dofs, bool)
+        target = np.zeros(self.n_dofs)
+        held[self.y_dofs(self.bottom)] = True
+        if stage_contact:
+            held[self.y_dofs(self.top)] = True
+            target[self.y_dofs(self.top)] = -1.0
+        if self.dofs_per_node == 2:
+            x_dofs = lambda nodes: 2 * nodes  # noqa: E731
+            if self.boundary.bottom == "bonded":
+                held[x_dofs(self.bottom)] = True
+            if stage_contact and self.boundary.top == "bonded":
+                held[x_dofs(self.top)] = True
+            if not held[0::2].any():   # nothing holds the block sideways: its centre stays put
+                centre = self.bottom[np.argmin(np.abs(self.nodes[self.bottom, 0] - self.width / 2))]
+                held[x_dofs(centre)] = True
+        return held, target
+
     def displacement_field(self, dofs: np.ndarray) -> np.ndarray:
         """Dof vector(s) (..., n_dofs) -> nodal displacements (..., N, 2)."""
         dofs = np.asarray(dofs)
@@ -100,22 +158,20 @@ class Mesh:
         return out
 
     @cached_property
-    def stiffness_parts(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(K_lambda, K_mu)``: stiffness per unit Lame constant (N/m per Pa)."""
+    def stiffness_parts(self) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
+        """``(K_lambda, K_mu)``: stiffness per unit Lame constant (N/m per Pa), sparse."""
         if self.geometry == "uniaxial":
-            return np.zeros((self.n_dofs,) * 2), self._bar_stiffness()
+            return sparse.csr_matrix((self.n_dofs, self.n_dofs)), self._bar_stiffness()
         return self._plane_stiffness_parts()
 
-    def stiffness(self, gamma: float | None) -> np.ndarray:
-        """Stiffness per unit Young's modulus, ``lambda^g K_lambda + mu^g K_mu`` (eq. 18-19).
-
-        The uniaxial bar has no Poisson effect (``gamma`` ignored).
-        """
+    def stiffness(self, gamma: float | None) -> sparse.csr_matrix:
+        """Stiffness per unit Young's modulus, ``lambda^g K_lambda + mu^g K_mu`` (eq. 18-19),
+        sparse. The uniaxial bar has no Poisson effect (``gamma`` ignored)."""
         K_lambda, K_mu = self.stiffness_parts
         if self.geometry == "uniaxial":
             return K_mu
         lam, mu = lame_per_unit_modulus(float(gamma))
-        return lam * K_lambda + mu * K_mu
+        return (lam * K_lambda + mu * K_mu).tocsr()
 
     def lumped_mass(self, density: float) -> np.ndarray:
         """Lumped nodal mass per dof (kg)."""
@@ -132,19 +188,17 @@ class Mesh:
 
     # -- assembly ---------------------------------------------------------------------
 
-    def _bar_stiffness(self) -> np.ndarray:
+    def _bar_stiffness(self) -> sparse.csr_matrix:
         k = self.width * self.thickness / (self.height / (self.rows - 1))  # A / L_e
-        K = np.zeros((self.rows, self.rows))
-        for i in range(self.rows - 1):
-            K[i : i + 2, i : i + 2] += k * np.array([[1.0, -1.0], [-1.0, 1.0]])
-        return K
+        element = k * np.array([[1.0, -1.0], [-1.0, 1.0]])
+        pairs = np.column_stack([np.arange(self.rows - 1), np.arange(1, self.rows)])
+        return _assemble(pairs, element, self.rows)
 
     def _quads(self) -> np.ndarray:
-        c = self.cols
-        return np.array(
-            [[r * c + j, r * c + j + 1, (r + 1) * c + j + 1, (r + 1) * c + j]
-             for r in range(self.rows - 1) for j in range(c - 1)]
-        )
+        """Node numbers of each element, counter-clockwise from its bottom left."""
+        r, j = np.meshgrid(np.arange(self.rows - 1), np.arange(self.cols - 1), indexing="ij")
+        first = (r * self.cols + j).ravel()
+        return np.column_stack([first, first + 1, first + self.cols + 1, first + self.cols])
 
     def _plane_stiffness_parts(self) -> tuple[np.ndarray, np.ndarray]:
         # Bilinear quadrilateral, 2 x 2 Gauss points; strain in Voigt form (xx, yy, xy).
@@ -165,9 +219,73 @@ class Mesh:
                 w = self.thickness * dx * dy / 4  # Gauss weight 1 x Jacobian determinant
                 ke_l += w * B.T @ I_lambda @ B
                 ke_m += w * B.T @ I_mu @ B
-        K_l, K_m = np.zeros((self.n_dofs,) * 2), np.zeros((self.n_dofs,) * 2)
-        for quad in self._quads():
-            idx = self.node_dofs(quad)
-            K_l[np.ix_(idx, idx)] += ke_l
-            K_m[np.ix_(idx, idx)] += ke_m
-        return K_l, K_m
+        dofs = np.stack([2 * self._quads(), 2 * self._quads() + 1], axis=2).reshape(-1, 8)
+        return _assemble(dofs, ke_l, self.n_dofs), _assemble(dofs, ke_m, self.n_dofs)
+
+    # -- what the sensors see ---------------------------------------------------------
+
+    def interpolation(self, points: np.ndarray) -> sparse.csr_matrix:
+        """(2 P, n_dofs): displacements (x, y interleaved) at ``points`` (P, 2) in m, by the
+        elements' bilinear shape functions (the bar: linear in y, no x motion)."""
+        points = np.asarray(points, float)
+        ys = self.nodes[:: self.cols, 1]
+        r = np.clip(np.searchsorted(ys, points[:, 1], side="right") - 1, 0, self.rows - 2)
+        ty = (points[:, 1] - ys[r]) / (ys[r + 1] - ys[r])
+        rows, cols, vals = [], [], []
+        if self.geometry == "uniaxial":
+            for k, (ri, t) in enumerate(zip(r, ty)):
+                rows += [2 * k + 1] * 2
+                cols += [ri, ri + 1]
+                vals += [1 - t, t]
+            return sparse.csr_matrix((vals, (rows, cols)), shape=(2 * len(points), self.n_dofs))
+        xs = self.nodes[: self.cols, 0]
+        c = np.clip(np.searchsorted(xs, points[:, 0], side="right") - 1, 0, self.cols - 2)
+        tx = (points[:, 0] - xs[c]) / (xs[c + 1] - xs[c])
+        for k in range(len(points)):
+            n0 = r[k] * self.cols + c[k]
+            corners = (n0, n0 + 1, n0 + self.cols + 1, n0 + self.cols)
+            weights = ((1 - tx[k]) * (1 - ty[k]), tx[k] * (1 - ty[k]), tx[k] * ty[k], (1 - tx[k]) * ty[k])
+            for axis in (0, 1):
+                rows += [2 * k + axis] * 4
+                cols += [2 * n + axis for n in corners]
+                vals += list(weights)
+        return sparse.csr_matrix((vals, (rows, cols)), shape=(2 * len(points), self.n_dofs))
+
+    def segment_integrals(self, edges: np.ndarray) -> np.ndarray:
+        """(segments, n_bottom): each tactile segment's force from the bottom nodes'
+        reactions, the segments spanning ``edges`` (segments + 1, m, along x).
+
+        The reactions are the consistent nodal loads of a pressure linear between the
+        nodes; that pressure is recovered (the edge's consistent mass matrix solved) and
+        integrated exactly over each segment. The 1D bar carries one uniform pressure.
+        """
+        edges = np.asarray(edges, float)
+        if self.geometry == "uniaxial":
+            return (np.diff(edges) / self.width)[:, None]
+        x = self.nodes[self.bottom, 0]
+        h = np.diff(x)
+        mass = np.zeros((x.size, x.size))
+        for i, hi in enumerate(h):
+            mass[i : i + 2, i : i + 2] += hi / 6 * np.array([[2.0, 1.0], [1.0, 2.0]])
+        recover = np.linalg.inv(mass)            # reactions -> nodal pressures (N/m)
+        # Integral over [a, b] of the hat function of each node (piecewise linear).
+        def hat_integrals(a: float, b: float) -> np.ndarray:
+            out = np.zeros(x.size)
+            for i in range(x.size - 1):
+                lo, hi_ = max(a, x[i]), min(b, x[i + 1])
+                if hi_ <= lo:
+                    continue
+                t0, t1 = (lo - x[i]) / h[i], (hi_ - x[i]) / h[i]
+                out[i] += h[i] * ((t1 - t1**2 / 2) - (t0 - t0**2 / 2))      # 1 - t
+                out[i + 1] += h[i] * (t1**2 - t0**2) / 2                      # t
+            return out
+        return np.array([hat_integrals(a, b) for a, b in zip(edges[:-1], edges[1:])]) @ recover
+
+
+def _assemble(element_dofs: np.ndarray, element: np.ndarray, n_dofs: int) -> sparse.csr_matrix:
+    """Sum one element matrix over every element's dofs (E, k) into a sparse (n, n)."""
+    k = element_dofs.shape[1]
+    rows = np.repeat(element_dofs, k, axis=1).ravel()
+    cols = np.tile(element_dofs, (1, k)).ravel()
+    vals = np.tile(element.ravel(), element_dofs.shape[0])
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(n_dofs, n_dofs))

@@ -10,6 +10,12 @@ and the element's free recovery after release (the body is then stress-free).
 One exact scalar response thus gives every node's force and every marker: the
 whole-record fit costs milliseconds per evaluation.
 
+The elastic shape is solved on a mesh refined below the marker grid (``refine``),
+chosen for accuracy: the markers read it by interpolation at their positions, each
+tactile segment as the bottom pressure integrated over its extent
+(``Mesh.segment_integrals``). At ``refine`` 1 without segment edges the bottom
+nodes' reactions are the segment forces, as in the paper's Section IV.
+
 Release is taken as instant: a stage retracting at the default 20 mm/s leaves the
 specimen within one stage sample (its viscous stress drops at once). A slow
 retraction, which the specimen follows for a while, is not modelled here yet.
@@ -20,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse.linalg import spsolve
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
@@ -29,24 +36,22 @@ from rheo_ros.models.response import respond
 
 @dataclass(frozen=True)
 class ElasticShape:
-    """Per unit stage depth (m) and unit Young's modulus (Pa): nodal displacement
-    (N, 2) in m/m, and bottom reactions (n_bottom,) in N/(Pa m)."""
+    """Per unit stage depth (m) and unit Young's modulus (Pa): marker displacements
+    (N, 2) in m/m, and tactile segment forces (segments,) in N/(Pa m)."""
 
     displacement: np.ndarray
     bottom_force: np.ndarray
 
 
-def elastic_shape(mesh: Mesh, gamma: float | None) -> ElasticShape:
-    """Static elastic solution: bottom held, top pushed down by 1 m (no x slip)."""
+def elastic_shape(mesh: Mesh, gamma: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """Static elastic solution of ``mesh`` for a unit stage depth and unit E, under the
+    mesh's boundary conditions: the dof displacements (m/m) and the bottom nodes' y
+    reactions (N/(Pa m), positive pressing the sensor)."""
     K = mesh.stiffness(gamma)
-    held = np.zeros(mesh.n_dofs, bool)
-    held[mesh.node_dofs(mesh.bottom)] = True
-    held[mesh.node_dofs(mesh.top)] = True
-    u = np.zeros(mesh.n_dofs)
-    u[mesh.y_dofs(mesh.top)] = -1.0
+    held, u = mesh.supports(stage_contact=True)
     free = ~held
-    u[free] = np.linalg.solve(K[np.ix_(free, free)], -K[np.ix_(free, held)] @ u[held])
-    return ElasticShape(mesh.displacement_field(u), (K @ u)[mesh.y_dofs(mesh.bottom)])
+    u[free] = spsolve(K[free][:, free].tocsc(), -(K[free][:, held] @ u[held]))
+    return u, (K @ u)[mesh.y_dofs(mesh.bottom)]
 
 
 @dataclass(frozen=True)
@@ -59,16 +64,34 @@ class Prediction:
 
 
 class QuasiStaticFE:
-    """Forward model: (model, Poisson ratio, stage profile) -> bottom forces and markers."""
+    """Forward model: (model, Poisson ratio, stage profile) -> segment forces and markers.
 
-    def __init__(self, mesh: Mesh) -> None:
+    Args:
+        mesh: the marker grid (markers at its nodes, one tactile segment per bottom node).
+        refine: the FE mesh splits each of the grid's elements ``refine`` x ``refine``.
+        segment_edges: x (m) of the tactile segments' edges (segments + 1); None: the
+            grid's bottom nodes' reactions themselves (only at ``refine`` 1).
+    """
+
+    SHAPES_KEPT = 64   # elastic shapes cached (one per Poisson ratio a fit tries)
+
+    def __init__(self, mesh: Mesh, refine: int = 1, segment_edges: np.ndarray | None = None) -> None:
         self.mesh = mesh
+        self.fe_mesh = mesh.refined(refine)
+        if segment_edges is None and refine != 1:
+            raise ValueError("a refined mesh needs the tactile segments' edges")
+        self._segments = None if segment_edges is None else self.fe_mesh.segment_integrals(segment_edges)
+        self._markers = self.fe_mesh.interpolation(mesh.nodes)
         self._shapes: dict[float | None, ElasticShape] = {}
 
     def shape(self, gamma: float | None) -> ElasticShape:
         key = None if self.mesh.geometry == "uniaxial" else float(gamma)
         if key not in self._shapes:
-            self._shapes[key] = elastic_shape(self.mesh, key)
+            if len(self._shapes) >= self.SHAPES_KEPT:
+                del self._shapes[next(iter(self._shapes))]
+            u, bottom = elastic_shape(self.fe_mesh, key)
+            force = bottom if self._segments is None else self._segments @ bottom
+            self._shapes[key] = ElasticShape((self._markers @ u).reshape(-1, 2), force)
         return self._shapes[key]
 
     def predict(

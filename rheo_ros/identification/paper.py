@@ -65,7 +65,10 @@ def _rate_search(residuals, rate0: float, n_linear: int) -> tuple[float, float]:
     log(rate) is ``s^2 / (J^T J)`` with ``s^2`` the residual variance after all the
     fitted parameters; it says how well the data pin the relaxation rate down.
     """
-    fit = least_squares(lambda x: residuals(np.exp(x[0])), [np.log(rate0)], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    # MINPACK (lm): one unbounded variable, its loop in compiled code. A relative step of
+    # 1e-10 in log(rate) is far below any rate's std; tighter only spends iterations on rounding.
+    fit = least_squares(lambda x: residuals(np.exp(x[0])), [np.log(rate0)], method="lm", xtol=1e-10, ftol=1e-12,
+                        gtol=1e-12)
     dof = max(fit.fun.size - n_linear - 1, 1)
     s2 = float(fit.fun @ fit.fun) / dof
     jtj = float(fit.jac[:, 0] @ fit.jac[:, 0])
@@ -293,7 +296,7 @@ def solve_node_equations(
     x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if plane else [])
     lo = [-np.inf, -np.inf] + ([-0.99] if plane else [])
     hi = [np.inf, np.inf] + ([0.4999] if plane else [])
-    sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
     c2, eta = float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")

@@ -31,6 +31,7 @@ class WholeRecordProblem:
         profile: the stage profile (default: read off the record's stage).
         guard: force samples this close (s) to a phase boundary are left out: the
             measured force is mid-jump there, the quasi-static model has jumped.
+        forward: the forward model (default: the record's marker grid, nodal forces).
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -43,6 +44,7 @@ class WholeRecordProblem:
     marker_std: float
     profile: StageProfile | None = None
     guard: float = 0.05
+    forward: QuasiStaticFE | None = None
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
@@ -50,7 +52,7 @@ class WholeRecordProblem:
         t = self.record.force_t
         self._use = np.abs(t[:, None] - edges[None]).min(axis=1) >= self.guard
         self._force = self.record.force[self._use]
-        self.forward = QuasiStaticFE(self.record.mesh)
+        self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.plane = self.record.mesh.geometry == "plane_fe"
         self.names = tuple(self.model.parameters) + (("gamma",) if self.plane else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -84,7 +86,7 @@ def _vector(names: tuple[str, ...], params: dict[str, float]) -> np.ndarray:
 def refine(
     record: Record, initial: Estimate, model: Model | None = None,
     force_std: np.ndarray | None = None, marker_std: float | None = None,
-    fixed: dict[str, float] | None = None,
+    fixed: dict[str, float] | None = None, forward: QuasiStaticFE | None = None,
 ) -> Estimate:
     """Fit the whole record starting from ``initial`` (for example the paper's estimate).
 
@@ -99,6 +101,7 @@ def refine(
         record, model,
         force_std if force_std is not None else scale_f,
         marker_std if marker_std is not None else 1e-5,
+        forward=forward,
     )
     fixed = fixed or {}
     all_names = problem.names

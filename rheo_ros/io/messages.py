@@ -187,6 +187,7 @@ def estimate_message(types: MessageTypes, update: Any) -> Any:
         covariance=types.float64s(np.zeros(0) if cov is None else np.asarray(cov).ravel()),
         rmse_force=float(update.rmse_force), samples=int(update.samples),
         undetermined=list(update.undetermined), reasons=list(update.reasons), message=update.message,
+        final=bool(update.final),
     )
     _stamp(msg, int(round(update.stamp * 1e9)))
     return msg
@@ -203,5 +204,5 @@ def read_estimate(msg: Any) -> dict[str, Any]:
         "method": msg.method, "equations": list(msg.equations), "params": dict(zip(names, values.tolist())),
         "std": {} if std is None else dict(zip(names, std.tolist())), "rmse_force": float(msg.rmse_force),
         "samples": int(msg.samples), "undetermined": dict(zip(msg.undetermined, msg.reasons)),
-        "message": msg.message,
+        "message": msg.message, "final": bool(msg.final),
     }

@@ -9,17 +9,23 @@ model's prediction of what is measured, for an overlay in Foxglove or PlotJuggle
   tactile frame's stamp;
 - ``/rheo/prediction/markers`` (``geometry_msgs/PoseArray``, like ``/markers/mesh``).
 
-The callbacks only convert messages and feed the core (``rheo_ros.online``); fits run
-in a worker thread so that no message waits for them. A bad message is counted and
-reported, never fatal.
+The callbacks only convert messages and feed the core (``rheo_ros.online``). The
+identification runs in two lanes, each a worker process, so that nothing waits behind
+a fit and no computation shares the interpreter with message intake: the paper's
+closed forms (tens of milliseconds), and the whole-record fits (up to seconds) at
+lower priority. A bad message is counted and reported, never fatal; a worker that
+dies is replaced.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import queue
 import threading
 import time
 from collections import deque
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -44,7 +50,15 @@ from rheo_ros.io.messages import (
     stamp_ns,
 )
 from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
-from rheo_ros.online.estimator import Job, OnlineEstimator, Update
+from rheo_ros.identification import estimate as identified
+from rheo_ros.online.estimator import (
+    Job,
+    OnlineEstimator,
+    Update,
+    closed_form_in_worker,
+    fit_in_worker,
+    worker_init,
+)
 from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
 
@@ -85,13 +99,20 @@ class EstimatorNode(Node):
         self.updates = 0
         self.latency = {"closed_form": deque(maxlen=1000), "whole_record": deque(maxlen=1000)}
         self.started = time.monotonic()
-        self.jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
+        # Lanes: a thread each, handing the work to its worker process and the result back.
+        self.pools = {"closed_form": self._start_pool("closed_form")}
+        if self.core.config.refine:
+            self.pools["fit"] = self._start_pool("fit")
+        self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
+        self.fit_jobs: queue.Queue[tuple[Job, identified.Estimate | RecordError, float] | None] = queue.Queue()
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         self.outbox: queue.Queue[tuple[Update, float]] = queue.Queue()
         self.results_ready = self.create_guard_condition(self.publish_results)
-        self.worker = threading.Thread(target=self.work, name="estimator-fits", daemon=True)
-        self.worker.start()
+        self.lanes = [threading.Thread(target=self.closed_form_lane, name="estimator-closed-forms", daemon=True),
+                      threading.Thread(target=self.fit_lane, name="estimator-fits", daemon=True)]
+        for lane in self.lanes:
+            lane.start()
         self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
         self.get_logger().info(f"estimator ready: {params['geometry']}, markers {self.setup.mesh.rows} x "
                                f"{self.setup.mesh.cols}, tactile {self.setup.tactile.rows} x {self.setup.tactile.cols}")
@@ -127,7 +148,7 @@ class EstimatorNode(Node):
         """Hand the phases whose data are all in to the worker. Which samples a job uses
         depends on stamps only; a silent topic stops holding phases back."""
         for job in self.core.ready_jobs(self.silent_streams()):
-            self.jobs.put((job, arrival))
+            self.closed_jobs.put((job, arrival))
 
     def on_stage(self, msg: JointState) -> None:
         self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
@@ -147,26 +168,67 @@ class EstimatorNode(Node):
             raise MessageError("data: non-finite pressures")
         return self.setup.tactile.nodal_forces(image[None])[0]
 
-    # -- fits (worker thread) ----------------------------------------------------------
+    # -- identification lanes ------------------------------------------------------------
 
-    def work(self) -> None:
-        while (item := self.jobs.get()) is not None:
+    NICENESS = {"closed_form": 0, "fit": 10}
+
+    def _start_pool(self, lane: str) -> ProcessPoolExecutor:
+        # spawn, not fork: a forked copy of a process running DDS threads is unsafe.
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=worker_init, initargs=(self.core.identify, self.NICENESS[lane]))
+        pool.submit(int).result()   # start it now, not at the first phase
+        return pool
+
+    def _in_worker(self, lane: str, function, *args):
+        try:
+            return self.pools[lane].submit(function, *args).result()
+        except BrokenProcessPool:
+            # The worker died (killed, out of memory): a new one for the next jobs.
+            self.pools[lane] = self._start_pool(lane)
+            raise RecordError(f"the {lane.replace('_', ' ')} worker process died; it was restarted") from None
+
+    def _hand_out(self, update: Update, arrival: float) -> None:
+        self.outbox.put((update, arrival))
+        self.results_ready.trigger()
+
+    def _failed(self, job: Job, exc: Exception) -> None:
+        e = job.event
+        if isinstance(exc, RecordError):
+            self.last_error = f"experiment {e.experiment} {e.name}: {exc}"
+            self.get_logger().warn(self.last_error)
+        else:   # a fit must never take the node down
+            self.last_error = f"experiment {e.experiment} {e.name}: fit failed: {type(exc).__name__}: {exc}"
+            self.get_logger().error(self.last_error)
+
+    def closed_form_lane(self) -> None:
+        while (item := self.closed_jobs.get()) is not None:
             job, arrival = item
-            e = job.event
             try:
-                for update in self.core.run_job(job):
-                    self.outbox.put((update, arrival))
-                    self.results_ready.trigger()
-                    self.last_error = ""
-                if job.stale:
-                    self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
-                                       f"{', '.join(TOPICS[s] for s in job.stale)} (stale)")
-            except RecordError as exc:
-                self.last_error = f"experiment {e.experiment} {e.name}: {exc}"
-                self.get_logger().warn(self.last_error)
-            except Exception as exc:  # a fit must never take the node down
-                self.last_error = f"experiment {e.experiment} {e.name}: fit failed: {type(exc).__name__}: {exc}"
-                self.get_logger().error(self.last_error)
+                update, closed = self._in_worker("closed_form", closed_form_in_worker, job)
+            except Exception as exc:
+                self._failed(job, exc)
+                continue
+            if update is not None:
+                self._hand_out(update, arrival)
+                self.last_error = ""
+            if "fit" in self.pools:
+                self.fit_jobs.put((job, closed, arrival))
+            elif update is None:
+                self._failed(job, closed)
+        self.fit_jobs.put(None)
+
+    def fit_lane(self) -> None:
+        while (item := self.fit_jobs.get()) is not None:
+            job, closed, arrival = item
+            try:
+                self._hand_out(self.core.fit(job, closed, run=lambda *a: self._in_worker("fit", fit_in_worker, *a)),
+                               arrival)
+            except Exception as exc:
+                self._failed(job, exc)
+                continue
+            e = job.event
+            self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
+                               f"{', '.join(TOPICS[s] for s in job.stale)} (stale)") if job.stale else ""
 
     def publish_results(self) -> None:
         while not self.outbox.empty():
@@ -265,8 +327,14 @@ class EstimatorNode(Node):
         self.diagnostics.publish(diagnostic_array(self, level, message, figures))
 
     def destroy_node(self) -> None:
-        self.jobs.put(None)
-        self.worker.join(timeout=5.0)
+        if not hasattr(self, "lanes"):      # __init__ failed part way (bad parameters)
+            super().destroy_node()
+            return
+        self.closed_jobs.put(None)
+        for lane in self.lanes:
+            lane.join(timeout=5.0)
+        for pool in self.pools.values():
+            pool.shutdown(wait=False, cancel_futures=True)
         super().destroy_node()
 
 

@@ -110,6 +110,7 @@ class StageNode(Node):
             self.context.try_shutdown()
 
     action_active = False
+    FIT_TIMEOUT = 60.0   # s of wall time for the final estimate once the profile is done
 
     # -- /rheo/identify ----------------------------------------------------------------
 
@@ -134,13 +135,14 @@ class StageNode(Node):
         seen = len(self.estimates)
         self.start(profile)
         self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({', '.join(f'{k} {v:g}' for k, v in changes.items())})")
-        # Generous: the run's own length on the stage clock, then a minute for the fits.
-        deadline_ns = None
+        # The run takes its own length on the stage clock (sim time in fast mode); the
+        # fits after it take wall time: a minute of it once the profile is done.
+        deadline = None
         try:
             while True:
                 time.sleep(0.02)
-                if self.t0 is not None and deadline_ns is None:
-                    deadline_ns = self.t0 + int((profile.t_end + 60.0) * 1e9)
+                if self.phase == "done" and deadline is None:
+                    deadline = time.monotonic() + self.FIT_TIMEOUT
                 if handle.is_cancel_requested:
                     return self._cancel(handle, result)
                 for msg in self.estimates[seen:]:
@@ -148,14 +150,14 @@ class StageNode(Node):
                     if self.t0 is None or stamp_ns(msg) < self.t0:
                         continue        # an estimate of an earlier run
                     handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
-                    if msg.phase == "release" and msg.method == "whole_record":
+                    if msg.final:
                         # Identified: the stage is off the specimen (the release has
                         # settled); the rest of the profile's recording time is not needed.
                         self.source.close()
                         self.source, self.phase = None, "done"
                         handle.succeed()
                         return Identify.Result(success=True, message="identified", estimate=msg)
-                if deadline_ns is not None and self.now_ns > deadline_ns:
+                if deadline is not None and time.monotonic() > deadline:
                     handle.abort()
                     result.message = "no final estimate on /rheo/estimate in time (is the estimator running?)"
                     return result

@@ -22,12 +22,15 @@ before it are kept.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Iterable, Iterator
+import os
+import signal
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.mesh import Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.paper import identify_keep, identify_paper, identify_pull
@@ -61,6 +64,8 @@ class Update:
     undetermined: tuple[str, ...]
     reasons: tuple[str, ...]
     message: str
+    final: bool = False             # the experiment's last update (after release: the fit, or the
+                                    # closed form when the estimator does not refine)
 
     @property
     def params(self) -> dict[str, float]:
@@ -110,6 +115,125 @@ class _Stream:
         return self.t[-1] if self.t else -np.inf
 
 
+class PhaseIdentifier:
+    """A completed phase's updates: the paper's closed form and the whole-record fit.
+
+    Holds no stream state (what it needs travels in the ``Job``), so that it can run in
+    a worker process beside the node.
+    """
+
+    def __init__(self, mesh: Mesh, config: EstimatorConfig, forward: QuasiStaticFE | None = None) -> None:
+        self.mesh, self.config = mesh, config
+        self.forward = forward or QuasiStaticFE(mesh)
+
+    def closed_form(self, job: Job) -> tuple[Update | None, Estimate | RecordError]:
+        """The paper's solution for the phase (eq. 6 after pull; 6, 7, 10 after keep; 6+14,
+        7, 15-17 after release) as an update, and the estimate a fit starts from; where
+        the closed form has no solution, no update and the reason.
+
+        Raises:
+            RecordError: the phase has too few samples to identify at all.
+        """
+        e, rec = job.event, job.record
+        if rec is None:
+            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
+        try:
+            est = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
+        except RecordError as exc:
+            return None, exc
+        return self._update(e, rec, est), est
+
+    def fit(self, job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
+        """The whole-record fit of the job's data from ``start``, checked for a relaxation
+        the data do not show; ``note`` goes in front of the fit's message."""
+        rec = job.record
+        fit = refine(rec, start, forward=self.forward)
+        if note:
+            fit = replace(fit, message=f"{note}; {fit.message}")
+        return self._update(job.event, rec, fit, self._relaxation_unseen(rec, fit)), fit
+
+    # A slower relaxation (c2 this many times larger) that fits the data as well means the
+    # data set no upper bound on c2: its std from the local curvature would mislead.
+    PROFILE_FACTOR = 30.0
+
+    def _relaxation_unseen(self, rec: Record, fit: Estimate) -> str:
+        """Profile of the likelihood along c2: refit with c2 held PROFILE_FACTOR times
+        larger (same noise weights); a cost within 4 (2 std) says the data cannot tell."""
+        r = fit.residual_rms
+        force_std = np.array([r[f"force_std_P{i + 1}"] for i in range(self.mesh.cols)])
+        held = {"c2": fit.params["c2"] * self.PROFILE_FACTOR}
+        try:
+            alt = refine(rec, fit, force_std=force_std, marker_std=r["marker_std"], fixed=held,
+                         forward=self.forward)
+        except (ValueError, np.linalg.LinAlgError):
+            return ""
+        delta = alt.residual_rms["cost"] - r["cost"]
+        if delta < 4.0:
+            return (f"the data fit as well with c2 {self.PROFILE_FACTOR:g} x larger (cost +{delta:.2g}): "
+                    "the relaxation is not seen")
+        return ""
+
+    # -- one update ------------------------------------------------------------------
+
+    def _update(self, e: PhaseEvent, rec: Record, est: Estimate, unseen: str = "") -> Update:
+        names = tuple(n for n in BASE_PARAMETERS if n in est.params)
+        values = np.array([est.params[n] for n in names])
+        undetermined: dict[str, str] = {}
+        profile = rec.profile()
+        rate = values[0] / (values[1] + values[2])
+        seen = min(rec.force_t[-1], profile.t_keep_end) - profile.t_pull_start
+        longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
+                  else "a keep long enough for the force to relax visibly determines it")
+        cov = est.covariance
+        if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
+            undetermined["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
+                                     "inside the physical range; a deeper push determines it")
+        if cov is None:
+            rel = est.residual_rms.get("rate_rel_std", 0.0)
+            if not rel <= self.config.rate_std:
+                for n in ("E", "c1", "c2"):
+                    undetermined[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
+                                       f"rate x time seen = {rate * seen:.2g}); {longer}")
+        else:
+            std = np.sqrt(np.clip(np.diag(cov), 0, None))
+            for i, n in enumerate(names):
+                if n == "gamma":
+                    if not std[i] <= self.config.gamma_std:
+                        undetermined[n] = (f"std {std[i]:.2g}: the markers' lateral motion is within their noise; "
+                                           "a deeper push determines it")
+                elif not std[i] <= self.config.undetermined_std * abs(values[i]):
+                    why = f"std {100 * std[i] / abs(values[i]):.0f} % of the value"
+                    undetermined[n] = f"{why}; {longer}" if n in ("E", "c2") else why
+            cov = cov.copy()
+        if unseen:
+            for n in ("E", "c2"):
+                undetermined[n] = f"{unseen}; {longer}"
+        rmse = self._rmse_force(rec, est.params)
+        bad = [i for i, n in enumerate(names) if n in undetermined]
+        values[bad] = np.nan
+        if cov is not None:
+            cov[bad, :] = np.nan
+            cov[:, bad] = np.nan
+        return Update(
+            experiment=e.experiment, phase=e.name, stamp=float(rec.force_t[-1]),
+            model="three_element", effects=(), method=est.method, equations=est.equations, names=names,
+            values=values, covariance=cov, rmse_force=rmse, samples=int(rec.force_t.size),
+            undetermined=tuple(undetermined), reasons=tuple(undetermined.values()), message=est.message,
+            final=e.name == "release" and (est.method == "whole_record" or not self.config.refine),
+        )
+
+    def _rmse_force(self, rec: Record, params: dict[str, float]) -> float:
+        """RMS error of the total force, leaving out samples within 0.05 s of a phase
+        boundary (the measured force is mid-jump there, the quasi-static model has jumped)."""
+        model = Model(three_element(params["E"], params["c1"], params["c2"]))
+        profile = rec.profile()
+        p = self.forward.predict(model, params.get("gamma"), profile, rec.force_t, rec.marker_t[:1])
+        edges = np.array([profile.t_pull_start, profile.t_pull_end, profile.t_keep_end])
+        use = np.abs(rec.force_t[:, None] - edges[None]).min(axis=1) >= 0.05
+        err = p.force.sum(axis=1)[use] - rec.force.sum(axis=1)[use]
+        return float(np.sqrt(np.mean(err**2)))
+
+
 class OnlineEstimator:
     """Streams in, jobs out. ``add_stage`` / ``add_force`` / ``add_markers`` return the
     phases they completed; ``ready_jobs()`` the phases whose data are all in.
@@ -133,7 +257,7 @@ class OnlineEstimator:
         self.profiles: dict[tuple[int, str], StageProfile] = {}
         self.push_start: float | None = None
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
-        self.forward = QuasiStaticFE(self.mesh)
+        self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
         self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
 
@@ -251,106 +375,36 @@ class OnlineEstimator:
             RecordError: the phase cannot be identified (too short, missing data, a
                 solution outside the model); the message says why.
         """
-        e, rec = job.event, job.record
-        if rec is None:
-            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
-        try:
-            start = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
-            failed = ""
-        except RecordError as exc:
-            # The closed form has no solution (a push too small, a release not settled):
-            # the fit of the data so far still runs, from this push's previous fit.
-            previous = self._fits.get(e.experiment)
-            if previous is None or not self.config.refine:
-                raise
-            start, failed = previous, f"closed form failed ({exc}); fit started from the previous update"
-        else:
-            yield self._update(e, rec, start)
+        update, closed = self.identify.closed_form(job)
+        if update is not None:
+            yield update
+        elif not self.config.refine:
+            raise closed
         if self.config.refine:
-            fit = refine(rec, start)
-            if failed:
-                fit = replace(fit, message=f"{failed}; {fit.message}")
-            self._fits = {e.experiment: fit}
-            yield self._update(e, rec, fit, self._relaxation_unseen(rec, fit))
+            yield self.fit(job, closed)
 
-    # A slower relaxation (c2 this many times larger) that fits the data as well means the
-    # data set no upper bound on c2: its std from the local curvature would mislead.
-    PROFILE_FACTOR = 30.0
+    def fit(self, job: Job, closed: Estimate | RecordError,
+            run: Callable[[Job, Estimate, str], tuple[Update, Estimate]] | None = None) -> Update:
+        """The whole-record fit of a job, started from its closed form or, where that has
+        no solution, from this push's previous fit.
 
-    def _relaxation_unseen(self, rec: Record, fit: Estimate) -> str:
-        """Profile of the likelihood along c2: refit with c2 held PROFILE_FACTOR times
-        larger (same noise weights); a cost within 4 (2 std) says the data cannot tell."""
-        r = fit.residual_rms
-        force_std = np.array([r[f"force_std_P{i + 1}"] for i in range(self.mesh.cols)])
-        held = {"c2": fit.params["c2"] * self.PROFILE_FACTOR}
-        try:
-            alt = refine(rec, fit, force_std=force_std, marker_std=r["marker_std"], fixed=held)
-        except (ValueError, np.linalg.LinAlgError):
-            return ""
-        delta = alt.residual_rms["cost"] - r["cost"]
-        if delta < 4.0:
-            return (f"the data fit as well with c2 {self.PROFILE_FACTOR:g} x larger (cost +{delta:.2g}): "
-                    "the relaxation is not seen")
-        return ""
+        Args:
+            closed: the job's closed-form estimate, or why it has none.
+            run: does the fit (``PhaseIdentifier.fit`` or a call of it in another process).
 
-    # -- one update ------------------------------------------------------------------
-
-    def _update(self, e: PhaseEvent, rec: Record, est: Estimate, unseen: str = "") -> Update:
-        names = tuple(n for n in BASE_PARAMETERS if n in est.params)
-        values = np.array([est.params[n] for n in names])
-        undetermined: dict[str, str] = {}
-        profile = rec.profile()
-        rate = values[0] / (values[1] + values[2])
-        seen = min(rec.force_t[-1], profile.t_keep_end) - profile.t_pull_start
-        longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
-                  else "a keep long enough for the force to relax visibly determines it")
-        cov = est.covariance
-        if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
-            undetermined["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
-                                     "inside the physical range; a deeper push determines it")
-        if cov is None:
-            rel = est.residual_rms.get("rate_rel_std", 0.0)
-            if not rel <= self.config.rate_std:
-                for n in ("E", "c1", "c2"):
-                    undetermined[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
-                                       f"rate x time seen = {rate * seen:.2g}); {longer}")
-        else:
-            std = np.sqrt(np.clip(np.diag(cov), 0, None))
-            for i, n in enumerate(names):
-                if n == "gamma":
-                    if not std[i] <= self.config.gamma_std:
-                        undetermined[n] = (f"std {std[i]:.2g}: the markers' lateral motion is within their noise; "
-                                           "a deeper push determines it")
-                elif not std[i] <= self.config.undetermined_std * abs(values[i]):
-                    why = f"std {100 * std[i] / abs(values[i]):.0f} % of the value"
-                    undetermined[n] = f"{why}; {longer}" if n in ("E", "c2") else why
-            cov = cov.copy()
-        if unseen:
-            for n in ("E", "c2"):
-                undetermined[n] = f"{unseen}; {longer}"
-        rmse = self._rmse_force(rec, est.params)
-        bad = [i for i, n in enumerate(names) if n in undetermined]
-        values[bad] = np.nan
-        if cov is not None:
-            cov[bad, :] = np.nan
-            cov[:, bad] = np.nan
-        return Update(
-            experiment=e.experiment, phase=e.name, stamp=float(rec.force_t[-1]),
-            model="three_element", effects=(), method=est.method, equations=est.equations, names=names,
-            values=values, covariance=cov, rmse_force=rmse, samples=int(rec.force_t.size),
-            undetermined=tuple(undetermined), reasons=tuple(undetermined.values()), message=est.message,
-        )
-
-    def _rmse_force(self, rec: Record, params: dict[str, float]) -> float:
-        """RMS error of the total force, leaving out samples within 0.05 s of a phase
-        boundary (the measured force is mid-jump there, the quasi-static model has jumped)."""
-        model = Model(three_element(params["E"], params["c1"], params["c2"]))
-        profile = rec.profile()
-        p = self.forward.predict(model, params.get("gamma"), profile, rec.force_t, rec.marker_t[:1])
-        edges = np.array([profile.t_pull_start, profile.t_pull_end, profile.t_keep_end])
-        use = np.abs(rec.force_t[:, None] - edges[None]).min(axis=1) >= 0.05
-        err = p.force.sum(axis=1)[use] - rec.force.sum(axis=1)[use]
-        return float(np.sqrt(np.mean(err**2)))
+        Raises:
+            RecordError: no closed form and no previous fit to start from.
+        """
+        e = job.event
+        note = ""
+        if isinstance(closed, RecordError):
+            previous = self._fits.get(e.experiment)
+            if previous is None:
+                raise closed
+            closed, note = previous, f"closed form failed ({closed}); fit started from the previous update"
+        update, fit = (run or self.identify.fit)(job, closed, note)
+        self._fits = {e.experiment: fit}
+        return update
 
     def predict(self, update: Update, t: np.ndarray, profile: StageProfile | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -362,8 +416,39 @@ class OnlineEstimator:
             raise ValueError("no determined estimate to predict with")
         model = Model(three_element(p["E"], p["c1"], p["c2"]))
         t = np.asarray(t, float)
-        pred = self.forward.predict(model, p.get("gamma"), profile, t, t)
+        pred = self.identify.forward.predict(model, p.get("gamma"), profile, t, t)
         return pred.force.sum(axis=1), self.mesh.nodes[None] + pred.displacement
+
+
+# A worker process's identifier (``worker_init`` makes it). The node runs closed forms
+# and fits in worker processes, off its own interpreter: neither waits for the other
+# nor for message intake (a thread would share the interpreter's lock with intake).
+_worker_identifier: PhaseIdentifier | None = None
+
+
+def worker_init(identifier: PhaseIdentifier, niceness: int = 0) -> None:
+    """Initialiser of a worker process: the identifier for all its jobs; ``niceness``
+    lowers its priority (fits yield the CPU to intake and closed forms)."""
+    global _worker_identifier
+    signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the node's to handle; the node stops us
+    os.nice(niceness)
+    _worker_identifier = identifier
+
+
+def _identifier() -> PhaseIdentifier:
+    if _worker_identifier is None:
+        raise RuntimeError("runs in a process started with worker_init")
+    return _worker_identifier
+
+
+def closed_form_in_worker(job: Job) -> tuple[Update | None, Estimate | RecordError]:
+    """``PhaseIdentifier.closed_form`` in a process made by ``worker_init``."""
+    return _identifier().closed_form(job)
+
+
+def fit_in_worker(job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
+    """``PhaseIdentifier.fit`` in a process made by ``worker_init``."""
+    return _identifier().fit(job, start, note)
 
 
 def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]]
