@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.differentiate import jacobian
 from scipy.optimize import least_squares
+from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.quasistatic import Prediction, QuasiStaticFE
@@ -18,6 +19,10 @@ from rheo_ros.identification.estimate import Estimate
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
+
+
+GAMMA_RANGE = (-1.0, 0.5)   # Poisson ratio of a stable isotropic plate in plane stress (open interval)
+SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
 
 
 @dataclass
@@ -109,21 +114,28 @@ def refine(
     start = {n: initial.params.get(n, v) for n, v in {**model.parameters, "gamma": 0.3}.items() if n in names}
     p0 = _vector(names, start)
     positive = np.array([n != "gamma" for n in names])
+    lo, hi = GAMMA_RANGE
 
-    # Positive parameters are fitted as log(p / p0): scale-free and sign-safe, which
-    # lets MINPACK's Levenberg-Marquardt run without bounds.
+    # Every parameter is searched unbounded (MINPACK's Levenberg-Marquardt) through a
+    # transform that keeps it physical: positive ones as log(p / p0) (scale-free), the
+    # Poisson ratio as a logistic map onto (-1, 0.5). Clipped: a step on data that do
+    # not determine a parameter may ask for e^1000; such a parameter is reported with
+    # an infinite std below, never a number.
     def unpack(x: np.ndarray) -> dict[str, float]:
-        # Clipped: an LM step on data that do not determine a parameter may ask for e^1000.
-        scale = np.exp(np.clip(np.where(positive, x, 0.0), -30.0, 30.0))
-        free = dict(zip(names, np.where(positive, p0 * scale, x).tolist()))
+        x = np.clip(x, -SEARCH_LIMIT, SEARCH_LIMIT)
+        values = np.where(positive, p0 * np.exp(np.where(positive, x, 0.0)), lo + (hi - lo) * expit(x))
+        free = dict(zip(names, values.tolist()))
         return {n: free[n] if n in free else float(fixed[n]) for n in all_names}
+
+    g0 = np.clip((p0 - lo) / (hi - lo), 1e-6, 1 - 1e-6)
+    x0 = np.where(positive, 0.0, logit(g0))
 
     def solve(x0: np.ndarray, tol: float):
         return least_squares(lambda x: problem.residuals(unpack(x)), x0, method="lm", xtol=tol, ftol=tol)
 
     estimate_noise = force_std is None or marker_std is None
     # A first pass only sets the weights: a loose tolerance is enough.
-    sol = solve(np.where(positive, 0.0, p0), 1e-6 if estimate_noise else 1e-10)
+    sol = solve(x0, 1e-6 if estimate_noise else 1e-10)
     passes = 1
     if estimate_noise:
         rf, rm = problem.group_rms(unpack(sol.x))
@@ -137,11 +149,21 @@ def refine(
     dof = max(sol.fun.size - len(names), 1)
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
-    cov_x = np.linalg.pinv(sol.jac.T @ sol.jac) * chi2
-    d = np.where(positive, _vector(names, params), 1.0)  # d p / d x
+    # A parameter at the edge of its search, or one the residuals do not depend on, is
+    # not determined by these data: infinite variance (its curvature would say ~0).
+    column = np.linalg.norm(sol.jac, axis=0)
+    loose = (np.abs(sol.x) >= 0.99 * SEARCH_LIMIT) | (column <= 1e-12 * max(column.max(), 1e-300))
+    bounded = ~loose
+    cov_x = np.zeros((len(names), len(names)))
+    cov_x[np.ix_(bounded, bounded)] = np.linalg.pinv(sol.jac[:, bounded].T @ sol.jac[:, bounded]) * chi2
+    sig = expit(np.clip(sol.x, -SEARCH_LIMIT, SEARCH_LIMIT))
+    d = np.where(positive, _vector(names, params), (hi - lo) * sig * (1 - sig))  # d p / d x
     cov = np.zeros((len(all_names), len(all_names)))
-    free = [all_names.index(n) for n in names]
+    free = np.array([all_names.index(n) for n in names])
     cov[np.ix_(free, free)] = cov_x * np.outer(d, d)
+    cov[free[loose], free[loose]] = np.inf
+    edge = [n for n, flag in zip(names, loose) if flag]
+    note = f"; not bounded by the data: {', '.join(edge)}" if edge else ""
     rf, rm = problem.group_rms(params)
     return Estimate(
         params=params,
@@ -152,7 +174,7 @@ def refine(
                       "cost": cost, "marker_std": float(problem.marker_std),
                       **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
                           problem.force_std, (record.mesh.cols,)))}},
-        message=f"{passes} pass(es); {sol.message}",
+        message=f"{passes} pass(es); {sol.message}{note}",
     )
 
 
