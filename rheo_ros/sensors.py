@@ -42,6 +42,11 @@ class TactileArray:
         node_x = np.linspace(0.0, self.width, self.nodes)
         return np.argmin(np.abs(centres[:, None] - node_x[None]), axis=1)
 
+    @cached_property
+    def columns_per_segment(self) -> np.ndarray:
+        """(nodes,): columns each bottom node owns (0: that node's force cannot be read)."""
+        return np.bincount(self.segment, minlength=self.nodes)
+
     @property
     def cell_area(self) -> float:
         return (self.width / self.cols) * (self.depth / self.rows)
@@ -49,7 +54,7 @@ class TactileArray:
     @cached_property
     def _spread(self) -> np.ndarray:
         """(nodes, cols): pressure per column (Pa) per newton on each node."""
-        counts = np.bincount(self.segment, minlength=self.nodes) * self.rows
+        counts = self.columns_per_segment * self.rows
         S = np.zeros((self.nodes, self.cols))
         S[self.segment, np.arange(self.cols)] = 1.0 / (counts[self.segment] * self.cell_area)
         return S
