@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from rheo_ros.experiment import StageProfile
@@ -213,6 +214,15 @@ class Setup:
         if p["simulator.seed"] < 0 or min(p["tactile.noise"], p["tactile.resolution"], p["tactile.threshold"],
                                           p["markers.noise"]) < 0:
             raise ParamsError(f"{source}: simulator.seed and the sensor noises must not be negative")
+        # Counted before anything is built: the models' own errors cannot name the
+        # parameter, and a zero cell count only fails later, dividing by it.
+        least = {"tactile.rows": (1, "cells"), "tactile.cols": (1, "cells"), "markers.rows": (2, "markers"),
+                 "mesh.refine": (1, "splits per element")}
+        if p["geometry"] == "plane_fe":  # uniaxial has one column of markers whatever markers.cols says
+            least["markers.cols"] = (2, "markers")
+        for key, (n, what) in least.items():
+            if p[key] < n:
+                raise ParamsError(f"{source}: {key}: {p[key]} {what}; must be at least {n}")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
             self.mesh.refined(p["mesh.refine"])
@@ -220,6 +230,22 @@ class Setup:
                 self.mesh.stiffness(self.gamma)
         except (ValueError, KeyError) as exc:
             raise ParamsError(f"{source}: {exc}") from None
+        if p["stage.depth"] >= p["specimen.height"]:
+            raise ParamsError(f"{source}: stage.depth: {p['stage.depth']} m is not less than specimen.height "
+                              f"({p['specimen.height']} m): the stage cannot push through the specimen")
+        self._check_segments(source)
+
+    def _check_segments(self, source: str) -> None:
+        """Every bottom node needs a tactile column: its force is read back from its segment."""
+        tactile = self.tactile
+        if tactile.cols < tactile.nodes:
+            raise ParamsError(f"{source}: tactile.cols: {tactile.cols} columns for {tactile.nodes} segments "
+                              f"(one per bottom marker, markers.cols); must be at least {tactile.nodes}")
+        empty = np.flatnonzero(tactile.columns_per_segment == 0)
+        if empty.size:  # cannot happen with the nearest-node split, but a split that changes must not pass silently
+            raise ParamsError(f"{source}: tactile.cols: {tactile.cols} columns leave segment(s) "
+                              f"{', '.join(f'P{i + 1}' for i in empty)} without a column; "
+                              f"each of the {tactile.nodes} segments needs one")
 
     @property
     def mesh(self) -> Mesh:

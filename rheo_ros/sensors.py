@@ -49,6 +49,11 @@ class TactileArray:
         changes = np.flatnonzero(np.diff(self.segment)) + 1
         return np.concatenate([[0.0], changes * pitch, [self.width]])
 
+    @cached_property
+    def columns_per_segment(self) -> np.ndarray:
+        """(nodes,): columns each bottom node owns (0: that node's force cannot be read)."""
+        return np.bincount(self.segment, minlength=self.nodes)
+
     @property
     def cell_area(self) -> float:
         return (self.width / self.cols) * (self.depth / self.rows)
@@ -56,7 +61,7 @@ class TactileArray:
     @cached_property
     def _spread(self) -> np.ndarray:
         """(nodes, cols): pressure per column (Pa) per newton on each node."""
-        counts = np.bincount(self.segment, minlength=self.nodes) * self.rows
+        counts = self.columns_per_segment * self.rows
         S = np.zeros((self.nodes, self.cols))
         S[self.segment, np.arange(self.cols)] = 1.0 / (counts[self.segment] * self.cell_area)
         return S

@@ -13,24 +13,45 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 
-from rheo_ros.params import DEFAULTS, PARAM_HELP, check_params
+from rheo_ros.params import DEFAULTS, PARAM_HELP, ParamsError, check_params
 
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
 
-def declare_all(node: Node) -> dict[str, Any]:
-    """Declare the package's parameters (defaults, descriptions) and return their values.
+# Every node passes these to Node.__init__: rclpy drops an override nobody declares,
+# so a misspelt name in a parameters file would be ignored in silence. Declared from
+# the overrides, every name reaches check_params, which refuses it as the CLI does.
+NODE_OPTIONS: dict[str, Any] = {"automatically_declare_parameters_from_overrides": True}
 
-    One table for every node, so one parameters file serves them all.
+# rclpy's own parameters on every node: a parameters file may set them.
+ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+
+
+def declare_all(node: Node) -> dict[str, Any]:
+    """Declare the package's parameters (defaults, descriptions) and return their values,
+    checked like the CLI's (unknown names, types, set-ups that cannot work).
+
+    One table for every node, so one parameters file serves them all. The node must be
+    created with ``NODE_OPTIONS``.
     """
-    values = {}
     for name, default in DEFAULTS.items():
-        text = PARAM_HELP.get(name, "see config/rheo_ros.yaml")
         # Dynamic typing: a file's "150" for a float parameter means 150.0, as in the CLI;
         # check_params below applies the one set of rules.
-        node.declare_parameter(name, default, ParameterDescriptor(description=text, dynamic_typing=True))
-        values[name] = node.get_parameter(name).value
-    return check_params(values, f"node {node.get_name()}")
+        descriptor = ParameterDescriptor(description=PARAM_HELP.get(name, "see config/rheo_ros.yaml"),
+                                         dynamic_typing=True)
+        if node.has_parameter(name):  # declared from the file: keep its value, give it the table's descriptor
+            node.set_descriptor(name, descriptor)
+        else:
+            node.declare_parameter(name, default, descriptor)
+    given = {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_PARAMETERS}
+    try:
+        return check_params(given, f"node {node.get_name()}")
+    except ParamsError:
+        # rclpy's shutdown destroys every node it tracks, and a subclass's destroy_node
+        # would trip over the attributes its refused __init__ never set (a traceback
+        # after the one-line error): the node goes now, as the plain rclpy Node it is.
+        Node.destroy_node(node)
+        raise
 
 
 def node_help(name: str, summary: str) -> str:

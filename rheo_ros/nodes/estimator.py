@@ -49,6 +49,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
+<<<<<<< HEAD
 from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
 from rheo_ros.identification import estimate as identified
 from rheo_ros.online.estimator import (
@@ -59,6 +60,10 @@ from rheo_ros.online.estimator import (
     fit_in_worker,
     worker_init,
 )
+=======
+from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
+from rheo_ros.online.estimator import Job, OnlineEstimator, Update
+>>>>>>> setup-checks
 from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
 
@@ -74,7 +79,7 @@ TOPICS = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC
 
 class EstimatorNode(Node):
     def __init__(self, name: str = "estimator") -> None:
-        super().__init__(name)
+        super().__init__(name, **NODE_OPTIONS)
         params = declare_all(self)
         self.setup = Setup(params)
         self.core = OnlineEstimator(self.setup, self.setup.segmenter_config(), self.setup.estimator_config())

@@ -27,7 +27,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.params import Setup
@@ -35,7 +35,7 @@ from rheo_ros.params import Setup
 
 class SegmenterNode(Node):
     def __init__(self) -> None:
-        super().__init__("segmenter")
+        super().__init__("segmenter", **NODE_OPTIONS)
         params = declare_all(self)
         self.setup = Setup(params)
         self.core = PhaseSegmenter(self.setup.segmenter_config())

@@ -30,14 +30,14 @@ from rheo_ros.io.messages import (
     read_joint_state,
     stamp_ns,
 )
-from rheo_ros.nodes.common import declare_all, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
 from rheo_ros.params import Setup
 from rheo_ros.simulator import Simulator
 
 
 class SimulatorNode(Node):
     def __init__(self) -> None:
-        super().__init__("simulator")
+        super().__init__("simulator", **NODE_OPTIONS)
         params = declare_all(self)
         self.setup = Setup(params)
         self.sim = Simulator(self.setup, params["simulator.seed"])

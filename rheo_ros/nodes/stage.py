@@ -23,7 +23,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from rheo_ros.io.messages import ESTIMATE_TOPIC, STAGE_TOPIC, JointStateEncoder, MessageTypes, stamp_ns
-from rheo_ros.nodes.common import declare_all, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS
 from rheo_ros.params import Setup
 from rheo_ros.stage import MotionSource, motion_source
@@ -35,7 +35,7 @@ class StageNode(Node):
     """Ticks at ``rates.stage`` on the wall clock, or on each ``/clock`` tick with ``use_sim_time``."""
 
     def __init__(self) -> None:
-        super().__init__("stage")
+        super().__init__("stage", **NODE_OPTIONS)
         params = declare_all(self)
         self.setup = Setup(params)
         self.driver = params["stage.driver"]
