@@ -115,13 +115,22 @@ def replay(short_bag, tmp_path_factory):
 
 
 def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
-    """Header stamps only: the same bag gives the offline core's numbers to 1e-9, twice."""
+    """Header stamps only: the same bag gives the offline core's numbers to 1e-9, twice.
+    (The node publishes a phase's closed form as soon as it has it, so it may come
+    before the previous phase's fit: the updates are compared per phase and method;
+    each lane keeps its own order.)"""
     runs, (_, updates, errors) = replay
     assert errors == []
     for run in runs:
         got = run["estimates"]
-        assert [(e["phase"], e["method"]) for e in got] == [(u.phase, u.method) for u in updates]
-        for e, u in zip(got, updates):
+        for lane in (lambda m: m == "whole_record", lambda m: m != "whole_record"):
+            assert ([(e["phase"], e["method"]) for e in got if lane(e["method"])]
+                    == [(u.phase, u.method) for u in updates if lane(u.method)])
+        assert got[-1]["final"] and updates[-1].final
+        by_key = {(e["phase"], e["method"]): e for e in got}
+        assert len(by_key) == len(got) == len(updates)
+        for u in updates:
+            e = by_key[(u.phase, u.method)]
             a = np.array(list(e["params"].values()))
             np.testing.assert_array_equal(np.isnan(a), np.isnan(u.values))
             ok = ~np.isnan(a)
@@ -202,10 +211,13 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path):
         g.spin_until(result.done, 120, "the identification result")
         r = result.result().result
         assert r.success, r.message
-        assert (r.estimate.phase, r.estimate.method) == ("release", "whole_record")
+        assert (r.estimate.phase, r.estimate.method, r.estimate.final) == ("release", "whole_record", True)
         phases = [f.feedback.phase for f in feedback]
         assert {"pull", "keep", "release"} <= set(phases)
-        assert phases == sorted(phases, key=["pull", "keep", "release"].index)
+        # Each lane (closed forms, fits) in phase order; a closed form may overtake a fit.
+        for lane in (True, False):
+            mine = [f.feedback.phase for f in feedback if (f.feedback.estimate.method == "whole_record") == lane]
+            assert mine == sorted(mine, key=["pull", "keep", "release"].index)
         final = read_estimate(r.estimate)
         for k, v in {"E": 3.33e4, "c1": 1.69e5, "gamma": 0.332}.items():
             assert abs(final["params"][k] - v) < 0.02 * v, (k, final["params"][k])

@@ -49,9 +49,8 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-<<<<<<< HEAD
-from rheo_ros.nodes.common import declare_all, diagnostic_array, run_node
 from rheo_ros.identification import estimate as identified
+from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.online.estimator import (
     Job,
     OnlineEstimator,
@@ -60,10 +59,6 @@ from rheo_ros.online.estimator import (
     fit_in_worker,
     worker_init,
 )
-=======
-from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
-from rheo_ros.online.estimator import Job, OnlineEstimator, Update
->>>>>>> setup-checks
 from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
 
