@@ -18,15 +18,16 @@ import numpy as np
 import yaml
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import Boundary, Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
-from rheo_ros.models.elements import three_element
+from rheo_ros.models.elements import Element, three_element
 from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
 DEFAULTS: dict[str, Any] = {
-    "geometry": "plane_fe", "boundary.bottom": "bonded", "boundary.top": "bonded", "mesh.refine": 1,
+    "geometry": "plane_fe", "boundary.bottom": "bonded", "boundary.top": "bonded", "mesh.refine": 8,
     "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
     "tactile.rows": 6, "tactile.cols": 32, "tactile.noise": 100.0, "tactile.resolution": 10.0,
     "tactile.threshold": 300.0,
@@ -38,7 +39,7 @@ DEFAULTS: dict[str, Any] = {
     "rates.stage": 100.0, "rates.tactile": 50.0, "rates.markers": 10.0,
     "material.E": 3.33e4, "material.c1": 1.69e5, "material.c2": 3.11e7, "material.gamma": 0.332,
     "material.density": 1500.0,
-    "simulator.omega": 1000.0, "simulator.seed": 0, "simulator.effects": [""],
+    "simulator.omega": 1000.0, "simulator.refine": 16, "simulator.seed": 0, "simulator.effects": [""],
     "effects.relaxation_branch.stiffness": 3.0e4, "effects.relaxation_branch.viscosity": 1.5e5,
     "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
     "effects.strain_stiffening.coefficient": 4.0,
@@ -58,6 +59,8 @@ PARAM_HELP: dict[str, str] = {
     "boundary.top": "plane_fe: bonded (no slip against the stage) or frictionless",
     "mesh.refine": "identification's FE mesh: each marker-grid element split refine x refine (1: the paper's "
                    "mesh on the markers, nodal forces; more: segment forces integrated over their extent)",
+    "simulator.refine": "simulator's FE mesh, as mesh.refine (finer than the identification's: its data are not "
+                        "the identifier's own model)",
     "specimen.width": "m, along x", "specimen.height": "m, along y (pushing axis)",
     "specimen.thickness": "m, along z",
     "tactile.rows": "cells along z", "tactile.cols": "cells along x",
@@ -217,7 +220,7 @@ class Setup:
         # Counted before anything is built: the models' own errors cannot name the
         # parameter, and a zero cell count only fails later, dividing by it.
         least = {"tactile.rows": (1, "cells"), "tactile.cols": (1, "cells"), "markers.rows": (2, "markers"),
-                 "mesh.refine": (1, "splits per element")}
+                 "mesh.refine": (1, "splits per element"), "simulator.refine": (1, "splits per element")}
         if p["geometry"] == "plane_fe":  # uniaxial has one column of markers whatever markers.cols says
             least["markers.cols"] = (2, "markers")
         for key, (n, what) in least.items():
@@ -254,11 +257,22 @@ class Setup:
                           rows=p["markers.rows"], cols=p["markers.cols"],
                           boundary=Boundary(p["boundary.bottom"], p["boundary.top"]))
 
+    def segment_edges(self, refine: int) -> np.ndarray | None:
+        """The tactile segments' edges for a mesh refined ``refine`` times; None at 1
+        (the marker grid's bottom nodes' reactions are the segment forces, as in the paper)."""
+        return self.tactile.segment_edges if refine > 1 else None
+
+    def dynamic_fe(self, rheology: Element) -> DynamicFE:
+        """The simulator's FE model (``simulator.refine``)."""
+        p = self.params
+        return DynamicFE(self.mesh, rheology, self.gamma, density=p["material.density"], omega=p["simulator.omega"],
+                         refine=p["simulator.refine"], segment_edges=self.segment_edges(p["simulator.refine"]))
+
     def forward_model(self) -> QuasiStaticFE:
         """The identification's forward model: the marker grid refined ``mesh.refine``
         times; beyond 1, each tactile segment's force integrated over its columns."""
         refine = self.params["mesh.refine"]
-        return QuasiStaticFE(self.mesh, refine, self.tactile.segment_edges if refine > 1 else None)
+        return QuasiStaticFE(self.mesh, refine, self.segment_edges(refine))
 
     @property
     def tactile(self) -> TactileArray:

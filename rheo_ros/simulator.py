@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from rheo_ros.experiment import sample_times
-from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.models.effects import Release
 from rheo_ros.params import Setup
 
@@ -44,11 +43,11 @@ class Simulator:
         self.setup, self.mesh = setup, setup.mesh
         self.model = setup.model()
         self.tactile, self.camera = setup.tactile, setup.camera
-        self.fe = DynamicFE(self.mesh, self.model.rheology(), setup.gamma,
-                            density=p["material.density"], omega=p["simulator.omega"])
+        self.fe = setup.dynamic_fe(self.model.rheology())
         tactile_seq, marker_seq = np.random.SeedSequence(seed).spawn(2)
         self.tactile_rng, self.marker_rng = np.random.default_rng(tactile_seq), np.random.default_rng(marker_seq)
         self.step_s = 1.0 / p["rates.stage"]
+        self.fe.prepare(self.step_s)   # a real-time run must not stall at its first step or at release
         self.every = {"tactile": round(p["rates.stage"] / p["rates.tactile"]),
                       "markers": round(p["rates.stage"] / p["rates.markers"])}
         self.k = -1                      # grid index of the model's time
@@ -128,7 +127,7 @@ def simulate_run(setup: Setup, seed: int = 0) -> Run:
     vectorised over the samples (what ``rheo simulate`` writes)."""
     p, profile, mesh = setup.params, setup.profile, setup.mesh
     model = setup.model()
-    fe = DynamicFE(mesh, model.rheology(), setup.gamma, density=p["material.density"], omega=p["simulator.omega"])
+    fe = setup.dynamic_fe(model.rheology())
     stage_t, depth, velocity = stage_samples(setup)
     tactile_t = sample_times(profile.t_end, p["rates.tactile"])
     marker_t = sample_times(profile.t_end, p["rates.markers"])

@@ -144,11 +144,14 @@ def test_params_travel_in_the_bag_metadata():
 
 @pytest.mark.parametrize("name", ["clean_short_keep", "clean_long_keep"])
 def test_refinement_through_the_sensor_path_recovers_the_material(name):
-    """Noisy, dead-banded, quantised pressures and noisy markers, as a robot would record them."""
+    """Noisy, dead-banded, quantised pressures and noisy markers, as a robot would record
+    them, simulated on a 65 x 65 mesh and identified on the default 33 x 33."""
     from rheo_ros.identification.refine import refine
+    from rheo_ros.params import Setup
 
-    rec = read_bag(BAGS / name).record
-    est = refine(rec, identify_paper(rec))
+    bag = read_bag(BAGS / name)
+    rec = bag.record
+    est = refine(rec, identify_paper(rec), forward=Setup(bag.params).forward_model())
     truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])

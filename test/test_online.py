@@ -124,8 +124,10 @@ def test_estimator_updates_after_each_phase_with_closed_form_then_fit(clean_upda
 
 
 def test_estimates_converge_on_the_truth_as_phases_complete(clean_updates):
-    """Noisy reference bag (the simulator's own model: self-consistency). Tolerances:
-    4 reported std and 0.2 % for the final fit; the pull's and keep's fits within 4 std."""
+    """Noisy reference bag, simulated on a mesh twice as fine as the identification's
+    (65 x 65 against 33 x 33 nodes: not its own model). Tolerances: 4 reported std
+    (noise and the mesh's discretisation error) and 0.2 % for the final fit; the pull's
+    and keep's fits within 4 std."""
     _, updates, _ = clean_updates
     final = updates[-1]
     for k, v in TRUTH.items():
@@ -137,9 +139,14 @@ def test_estimates_converge_on_the_truth_as_phases_complete(clean_updates):
     # The fits narrow down as data come in: c2's std after keep is below a tenth of after pull.
     assert updates[3].std["c2"] < 0.1 * updates[1].std["c2"]
     assert updates[5].std["c2"] <= updates[3].std["c2"]
-    # The closed form with the keep's marker displacement is within 1 %.
-    assert max(abs(e) for e in (100 * (updates[2].params[k] / v - 1) for k, v in TRUTH.items() if k != "gamma")) < 1.0
-    assert all(u.rmse_force < 0.1 for u in updates)   # N, total force; its noise is ~0.01 N
+    # The closed form with the keep's marker displacement works on the paper's mesh (the
+    # 5 x 5 marker grid): on data from a converged mesh it is off by that mesh's
+    # discretisation error (measured: 6.9 % at most), which the fits then remove.
+    assert max(abs(e) for e in (100 * (updates[2].params[k] / v - 1) for k, v in TRUTH.items() if k != "gamma")) < 10
+    # N, total force; its noise is ~0.01 N. The closed forms (paper's mesh, ~7 % off)
+    # misfit by 0.15-0.21 N (measured), the fits by 0.006-0.007 N.
+    assert all(u.rmse_force < 0.02 for u in updates if u.method == "whole_record")
+    assert all(u.rmse_force < 0.3 for u in updates if u.method != "whole_record")
 
 
 def test_results_do_not_depend_on_how_the_streams_interleave(clean_updates):

@@ -27,6 +27,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.linalg import expm
+from scipy.sparse.linalg import splu
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
@@ -34,6 +35,83 @@ from rheo_ros.models.elements import Element
 from rheo_ros.models.response import StateSpace
 
 Contact = Literal["held", "free"]
+
+
+@dataclass(frozen=True)
+class Condensed:
+    """The specimen's FE mesh seen at the nodes the dynamics need.
+
+    A mesh refined below the marker grid is statically condensed onto its master
+    nodes (the markers, the bottom row on the sensor, the top row under the stage):
+    ``K_c = K_mm - K_ms K_ss^-1 K_sm``. The rheology is one scalar operator on ``K u``
+    and the other nodes carry no load, so their equations ``Q[K_sm u_m + K_ss u_s] = 0``
+    give ``u_s = -K_ss^-1 K_sm u_m`` at all times: the condensation is exact for the
+    quasi-static response, and only inertia is approximated (each other node's mass
+    goes to its nearest master; the lowest mode is ~60 Hz, the experiment ~0.1 Hz).
+    Unrefined, every node is a master and nothing is approximated.
+
+    Attributes:
+        fine: the refined mesh; ``masters`` its master nodes (sorted).
+        K: condensed stiffness per unit E (dense: the matrix exponential takes it).
+        mass: lumped mass per condensed dof (kg).
+        bottom_y, top_y: condensed dofs of the bottom and top rows' y.
+        segments: (segments, bottom nodes) each tactile segment's force from the
+            bottom reactions (identity without segment edges).
+        marker_dofs: condensed dofs of each marker's x and y (-1: none, the 1D bar's x).
+    """
+
+    fine: Mesh
+    masters: np.ndarray
+    K: np.ndarray
+    mass: np.ndarray
+    bottom_y: np.ndarray
+    top_y: np.ndarray
+    segments: np.ndarray
+    marker_dofs: np.ndarray
+
+    @classmethod
+    def of(cls, mesh: Mesh, gamma: float | None, density: float, refine: int = 1,
+           segment_edges: np.ndarray | None = None) -> Condensed:
+        fine = mesh.refined(refine)
+        if segment_edges is None and refine != 1:
+            raise ValueError("a refined mesh needs the tactile segments' edges")
+        d = fine.dofs_per_node
+        # Marker nodes in the fine mesh: the marker grid sits on every refine-th node.
+        step_cols = 1 if mesh.cols == 1 else refine
+        fine_cols = fine.cols
+        marker_nodes = np.array([(i // mesh.cols) * refine * fine_cols + (i % mesh.cols) * step_cols
+                                 for i in range(mesh.nodes.shape[0])])
+        masters = np.unique(np.concatenate([marker_nodes, fine.bottom, fine.top]))
+        dofs = fine.node_dofs(masters)
+        K = fine.stiffness(gamma).tocsr()
+        if dofs.size == fine.n_dofs:
+            K_c = K.toarray()
+        else:
+            slave = np.setdiff1d(np.arange(fine.n_dofs), dofs)
+            lu = splu(K[slave][:, slave].tocsc())
+            K_c = K[dofs][:, dofs].toarray() - K[dofs][:, slave] @ lu.solve(K[slave][:, dofs].toarray())
+            K_c = (K_c + K_c.T) / 2   # symmetric to rounding
+        # Lumped masses: each node's to its nearest master.
+        node_mass = fine.lumped_mass(density)[::d]
+        nearest = np.argmin(np.linalg.norm(fine.nodes[:, None] - fine.nodes[masters][None], axis=2), axis=1)
+        mass = np.repeat(np.bincount(nearest, weights=node_mass, minlength=masters.size), d)
+        where = {n: k for k, n in enumerate(masters)}
+        local_y = lambda nodes: np.array([where[n] * d + d - 1 for n in nodes])  # noqa: E731
+        segments = (np.eye(fine.cols) if segment_edges is None else fine.segment_integrals(segment_edges))
+        marker_dofs = np.array([[where[n] * d if d == 2 else -1, where[n] * d + d - 1] for n in marker_nodes])
+        return cls(fine, masters, K_c, mass, local_y(fine.bottom), local_y(fine.top), segments, marker_dofs)
+
+    def supports(self, stage_contact: bool) -> tuple[np.ndarray, np.ndarray]:
+        """``Mesh.supports`` of the fine mesh on the condensed dofs."""
+        held, target = self.fine.supports(stage_contact)
+        dofs = self.fine.node_dofs(self.masters)
+        return held[dofs], target[dofs]
+
+    def marker_displacement(self, u: np.ndarray) -> np.ndarray:
+        """Condensed dof vector(s) (..., n) -> marker displacements (..., N, 2)."""
+        u = np.asarray(u)
+        padded = np.concatenate([u, np.zeros((*u.shape[:-1], 1))], axis=-1)   # index -1: zero
+        return padded[..., self.marker_dofs]
 
 
 @dataclass(frozen=True)
@@ -64,22 +142,23 @@ class DynamicFE:
 
     def __init__(
         self, mesh: Mesh, rheology: Element, gamma: float | None = None,
-        density: float = 1.5e3, omega: float = 1.0e3,
+        density: float = 1.5e3, omega: float = 1.0e3, refine: int = 1, segment_edges: np.ndarray | None = None,
     ) -> None:
         self.mesh, self.gamma, self.omega = mesh, gamma, omega
-        self.K = mesh.stiffness(gamma).toarray()   # small meshes: dense, for the matrix exponential
-        self.mass = mesh.lumped_mass(density)
+        self.structure = Condensed.of(mesh, gamma, density, refine, segment_edges)
+        self.K, self.mass = self.structure.K, self.structure.mass
         self.ss = StateSpace.of(rheology)
-        n, nq = mesh.n_dofs, self.ss.A.shape[0]
+        n, nq = self.K.shape[0], self.ss.A.shape[0]
         self.n, self.nq = n, nq
         self.size = 2 * n + nq * n + 2
         # Index blocks of the state z = [u, v, x_1..x_nq, g, g'], g = top target (m, y up).
         self.iu, self.iv = slice(0, n), slice(n, 2 * n)
         self.ix = [slice(2 * n + k * n, 2 * n + (k + 1) * n) for k in range(nq)]
         self.ig, self.igd = 2 * n + nq * n, 2 * n + nq * n + 1
-        self._bottom_y, self._top_y = mesh.y_dofs(mesh.bottom), mesh.y_dofs(mesh.top)
+        self._bottom_y, self._top_y = self.structure.bottom_y, self.structure.top_y
         self._modes: dict[Contact, tuple[np.ndarray, np.ndarray]] = {}
         self._phi: dict[tuple[Contact, float], np.ndarray] = {}
+        self._ladders: dict[float, list[np.ndarray]] = {}
         self.reset()
 
     def reset(self, t: float = 0.0) -> None:
@@ -93,8 +172,8 @@ class DynamicFE:
         """System matrix and reaction rows (n x size: support force on each held dof)."""
         if contact in self._modes:
             return self._modes[contact]
-        mesh, n, w = self.mesh, self.n, self.omega
-        held, down = mesh.supports(stage_contact=contact == "held")
+        n, w = self.n, self.omega
+        held, down = self.structure.supports(contact == "held")
         target = -down  # multiplier of g(t) (the top's target, m, y up) in each held dof's target
         F = np.zeros((n, self.size))  # rheological nodal force
         F[:, self.iv] = self.ss.D * self.K
@@ -134,10 +213,12 @@ class DynamicFE:
     # -- outputs of the current state -----------------------------------------------------
 
     def bottom_force(self) -> np.ndarray:
-        return self._mode(self.contact)[1][self._bottom_y] @ self.z
+        """Force on each tactile segment (N, positive pressing)."""
+        return self.structure.segments @ (self._mode(self.contact)[1][self._bottom_y] @ self.z)
 
     def displacement(self) -> np.ndarray:
-        return self.mesh.displacement_field(self.z[self.iu])
+        """Marker displacements (N, 2) in m."""
+        return self.structure.marker_displacement(self.z[self.iu])
 
     def strain(self) -> float:
         """Nominal compressive strain: mean sinking of the top nodes / height."""
@@ -167,8 +248,7 @@ class DynamicFE:
             self.z[self.ig], self.z[self.igd] = -d0, -(depth - d0) / dt
             z_end = self._propagator("held", dt) @ self.z
             if depth < d0 and self._pressing(z_end) < 0.0:
-                tau = self._release_time(dt)
-                self.z = expm(self._mode("held")[0] * tau) @ self.z
+                tau, self.z = self._release(dt)
                 self.contact = "free"
                 self.z = expm(self._mode("free")[0] * (dt - tau)) @ self.z
             else:
@@ -178,23 +258,37 @@ class DynamicFE:
             if self.strain() * self.mesh.height < depth:  # the stage reaches the specimen again
                 self.contact = "held"
 
-    def _release_time(self, dt: float, depth: int = 30) -> float:
-        """Instant within the step at which the stage stops pressing, by bisection.
+    RELEASE_DEPTH = 24   # the release instant to dt / 2^24 (under a nanosecond at 100 Hz)
 
-        The propagators of dt/2, dt/4, ... come from one matrix exponential of the
-        smallest by repeated squaring, so the search costs one exponential.
-        """
-        if self._pressing(self.z) <= 0.0:
-            return 0.0
-        steps = [expm(self._mode("held")[0] * (dt / 2**depth))]
-        for _ in range(depth - 1):
-            steps.append(steps[-1] @ steps[-1])
+    def _release_ladder(self, dt: float) -> list[np.ndarray]:
+        """Held propagators of dt/2, dt/4, ... dt/2^RELEASE_DEPTH: one matrix exponential
+        of the smallest, squared up; kept per step length (one per run in practice)."""
+        key = dt
+        if key not in self._ladders:
+            steps = [expm(self._mode("held")[0] * (dt / 2**self.RELEASE_DEPTH))]
+            for _ in range(self.RELEASE_DEPTH - 1):
+                steps.append(steps[-1] @ steps[-1])
+            self._ladders[key] = steps[::-1]
+        return self._ladders[key]
+
+    def prepare(self, dt: float) -> None:
+        """Compute now what stepping by ``dt`` needs (a real-time simulator must not stall
+        at the first step or at release)."""
+        for contact in ("held", "free"):
+            self._propagator(contact, dt)
+        self._release_ladder(dt)
+
+    def _release(self, dt: float) -> tuple[float, np.ndarray]:
+        """Instant within the step at which the stage stops pressing, and the state then,
+        by bisection on the ladder of propagators (dt/2, dt/4, ...)."""
         tau, z = 0.0, self.z
-        for j, phi in enumerate(reversed(steps), start=1):  # dt/2, dt/4, ...
+        if self._pressing(z) <= 0.0:
+            return tau, z
+        for j, phi in enumerate(self._release_ladder(dt), start=1):
             trial = phi @ z
             if self._pressing(trial) > 0.0:
                 tau, z = tau + dt / 2**j, trial
-        return tau
+        return tau, z
 
     def simulate(self, profile: StageProfile, t: np.ndarray) -> FEResult:
         """Run the stage ``profile`` from rest and sample at the sorted times ``t`` (s).
@@ -221,7 +315,7 @@ class DynamicFE:
                 states[slot[i]], held[slot[i]] = self.z, self.contact == "held"
         force = np.empty((t.size, self.mesh.cols))
         for contact, mask in (("held", held), ("free", ~held)):
-            force[mask] = states[mask] @ self._mode(contact)[1][self._bottom_y].T
+            force[mask] = states[mask] @ (self.structure.segments @ self._mode(contact)[1][self._bottom_y]).T
         strain = -states[:, self._top_y].mean(axis=1) / self.mesh.height
-        disp = self.mesh.displacement_field(states[:, self.iu])
+        disp = self.structure.marker_displacement(states[:, self.iu])
         return FEResult(t, profile.depth_at(t), disp, force, held, strain)

@@ -76,13 +76,27 @@ class QuasiStaticFE:
     SHAPES_KEPT = 64   # elastic shapes cached (one per Poisson ratio a fit tries)
 
     def __init__(self, mesh: Mesh, refine: int = 1, segment_edges: np.ndarray | None = None) -> None:
-        self.mesh = mesh
+        self.mesh, self.refine = mesh, refine
+        self.segment_edges = segment_edges
         self.fe_mesh = mesh.refined(refine)
         if segment_edges is None and refine != 1:
             raise ValueError("a refined mesh needs the tactile segments' edges")
+        self._finer: QuasiStaticFE | None = None
         self._segments = None if segment_edges is None else self.fe_mesh.segment_integrals(segment_edges)
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
         self._shapes: dict[float | None, ElasticShape] = {}
+
+    def finer(self) -> QuasiStaticFE:
+        """The same model on a mesh twice as fine (its difference from this one measures
+        this mesh's discretisation error); the marker grid's own mesh doubles to 2 with
+        the segments integrated over their extent."""
+        if self._finer is None:
+            edges = self.segment_edges
+            if edges is None:   # nodal forces: the segments are the bottom nodes' tributary halves
+                x = self.mesh.nodes[self.mesh.bottom, 0]
+                edges = np.concatenate([[x[0]], (x[1:] + x[:-1]) / 2, [x[-1]]])
+            self._finer = QuasiStaticFE(self.mesh, 2 * self.refine, edges)
+        return self._finer
 
     def shape(self, gamma: float | None) -> ElasticShape:
         key = None if self.mesh.geometry == "uniaxial" else float(gamma)

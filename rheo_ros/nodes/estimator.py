@@ -107,7 +107,8 @@ class EstimatorNode(Node):
         self.fit_jobs: queue.Queue[tuple[Job, identified.Estimate | RecordError, float] | None] = queue.Queue()
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
-        self.outbox: queue.Queue[tuple[Update, float]] = queue.Queue()
+        # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
+        self.outbox: queue.Queue[tuple[Update, float] | tuple[str, str]] = queue.Queue()
         self.results_ready = self.create_guard_condition(self.publish_results)
         self.lanes = [threading.Thread(target=self.closed_form_lane, name="estimator-closed-forms", daemon=True),
                       threading.Thread(target=self.fit_lane, name="estimator-fits", daemon=True)]
@@ -195,10 +196,11 @@ class EstimatorNode(Node):
         e = job.event
         if isinstance(exc, RecordError):
             self.last_error = f"experiment {e.experiment} {e.name}: {exc}"
-            self.get_logger().warn(self.last_error)
+            self.outbox.put(("warn", self.last_error))
         else:   # a fit must never take the node down
             self.last_error = f"experiment {e.experiment} {e.name}: fit failed: {type(exc).__name__}: {exc}"
-            self.get_logger().error(self.last_error)
+            self.outbox.put(("error", self.last_error))
+        self.results_ready.trigger()
 
     def closed_form_lane(self) -> None:
         while (item := self.closed_jobs.get()) is not None:
@@ -232,7 +234,15 @@ class EstimatorNode(Node):
 
     def publish_results(self) -> None:
         while not self.outbox.empty():
-            update, arrival = self.outbox.get()
+            item = self.outbox.get()
+            if isinstance(item[0], str):
+                level, text = item
+                if level == "warn":
+                    self.get_logger().warn(text)
+                else:
+                    self.get_logger().error(text)
+                continue
+            update, arrival = item
             self.estimates.publish(estimate_message(self.types, update))
             kind = "whole_record" if update.method == "whole_record" else "closed_form"
             self.latency[kind].append(time.perf_counter() - arrival)

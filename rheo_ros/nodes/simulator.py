@@ -56,8 +56,10 @@ class SimulatorNode(Node):
             self.last_progress = time.monotonic()
             self.create_timer(0.2, self.kick_clock)  # wall timer: (re)sends the clock until the stage answers
         effects = ", ".join(self.setup.effect_ids) or "none"
-        self.get_logger().info(f"simulator ready: {self.setup.params['geometry']} mesh "
-                               f"{self.setup.mesh.rows} x {self.setup.mesh.cols}, hidden effects: {effects}")
+        fine = self.sim.fe.structure.fine
+        self.get_logger().info(f"simulator ready: {self.setup.params['geometry']} FE mesh {fine.rows} x {fine.cols} "
+                               f"nodes ({self.setup.mesh.rows} x {self.setup.mesh.cols} markers), "
+                               f"hidden effects: {effects}")
 
     def on_stage(self, msg: JointState) -> None:
         try:

@@ -164,7 +164,7 @@ class PhaseIdentifier:
         held = {"c2": fit.params["c2"] * self.PROFILE_FACTOR}
         try:
             alt = refine(rec, fit, force_std=force_std, marker_std=r["marker_std"], fixed=held,
-                         forward=self.forward)
+                         forward=self.forward, discretisation=False)
         except (ValueError, np.linalg.LinAlgError):
             return ""
         delta = alt.residual_rms["cost"] - r["cost"]
