@@ -88,7 +88,8 @@ def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Exec
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
-        print(f"{sys.argv[0]}: error: {exc}", file=sys.stderr)
+        reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc   # str(KeyError) adds quotes
+        print(f"{sys.argv[0]}: error: {reason}", file=sys.stderr)
         sys.exit(2)
     finally:
         if node is not None:
