@@ -130,7 +130,7 @@ class EstimatorNode(Node):
         except (MessageError, RecordError, ValueError) as exc:
             self.bad[stream] += 1
             self.last_bad = f"{TOPICS[stream]}: {exc}"
-            self.get_logger().warn(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            self.get_logger().warning(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
             return
         for e in events:  # /rheo/phase is the segmenter node's; the same core finds the same phases
             self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
@@ -194,11 +194,12 @@ class EstimatorNode(Node):
 
     def _failed(self, job: Job, exc: Exception) -> None:
         e = job.event
-        if isinstance(exc, RecordError):
-            self.last_error = f"experiment {e.experiment} {e.name}: {exc}"
+        where = f"experiment {e.experiment} {e.name}: "
+        if isinstance(exc, RecordError):   # the core's messages mostly name the phase already
+            self.last_error = f"{where}{str(exc).removeprefix(where)}"
             self.outbox.put(("warn", self.last_error))
         else:   # a fit must never take the node down
-            self.last_error = f"experiment {e.experiment} {e.name}: fit failed: {type(exc).__name__}: {exc}"
+            self.last_error = f"{where}fit failed: {type(exc).__name__}: {exc}"
             self.outbox.put(("error", self.last_error))
         self.results_ready.trigger()
 
@@ -238,7 +239,7 @@ class EstimatorNode(Node):
             if isinstance(item[0], str):
                 level, text = item
                 if level == "warn":
-                    self.get_logger().warn(text)
+                    self.get_logger().warning(text)
                 else:
                     self.get_logger().error(text)
                 continue

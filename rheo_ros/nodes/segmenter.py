@@ -56,7 +56,7 @@ class SegmenterNode(Node):
         except (MessageError, ValueError) as exc:
             self.bad += 1
             self.last_bad = f"{topic}: {exc}"
-            self.get_logger().warn(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            self.get_logger().warning(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
             return
         for e in events:
             self.publish(e)

@@ -65,7 +65,7 @@ class SimulatorNode(Node):
         try:
             depth, _ = read_joint_state(msg)
         except MessageError as exc:
-            self.get_logger().warn(f"{STAGE_TOPIC}: {exc}; sample ignored", throttle_duration_sec=5.0)
+            self.get_logger().warning(f"{STAGE_TOPIC}: {exc}; sample ignored", throttle_duration_sec=5.0)
             return
         stamp = stamp_ns(msg)
         if self.t0 is None:

@@ -116,7 +116,7 @@ class StageNode(Node):
 
     def accept_goal(self, goal: Identify.Goal) -> GoalResponse:
         if self.running or self.action_active:
-            self.get_logger().warn(f"{IDENTIFY_ACTION}: rejected, a run is in progress")
+            self.get_logger().warning(f"{IDENTIFY_ACTION}: rejected, a run is in progress")
             return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
@@ -167,7 +167,7 @@ class StageNode(Node):
     def _cancel(self, handle, result: Identify.Result) -> Identify.Result:
         t = (self.now_ns - self.t0) * 1e-9 if self.t0 is not None else 0.0
         self.source.abort(t)
-        self.get_logger().warn(f"{IDENTIFY_ACTION}: cancelled at {t:.2f} s: retracting")
+        self.get_logger().warning(f"{IDENTIFY_ACTION}: cancelled at {t:.2f} s: retracting")
         while self.phase != "done" and self.context.ok():
             time.sleep(0.02)
         handle.canceled()
