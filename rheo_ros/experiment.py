@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rheo_ros.models.response import Program, Segment
+from rheo_ros.models.response import Program
 
 @dataclass(frozen=True)
 class Phase:
@@ -88,11 +88,10 @@ class StageProfile:
                 (t_back, 0.0)]
 
     def program(self) -> Program:
-        """The top-face displacement program (m) for the exact model response."""
-        return Program(
-            self.t_pull_start,
-            (Segment(self.pull_time, self.velocity), Segment(self.keep_time, 0.0), Segment(np.inf, None)),
-        )
+        """The top-face displacement program (m) for the exact model response; the
+        specimen follows a retracting stage while it presses on it."""
+        return Program.push_hold_release(self.depth, self.pull_time, self.keep_time, self.t_pull_start,
+                                         self.retract_speed)
 
 
 def sample_times(t_end: float, rate: float) -> np.ndarray:

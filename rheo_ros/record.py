@@ -127,7 +127,9 @@ def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") ->
         slope, icept = np.polyfit(t[seg], depth[seg], 1)
         if slope < 0:
             retract = float(-slope)
-            t_keep_end = float(np.clip((level - icept) / slope, t[i - 1], t[i]))
+            # A slow retraction takes several samples to leave the tolerance band: the
+            # line meets the plateau anywhere after the hold's first sample.
+            t_keep_end = float(np.clip((level - icept) / slope, t[first], t[i]))
     try:
         return StageProfile(
             depth=level, velocity=float(velocity), keep_time=max(t_keep_end - t_pull_end, 0.0),

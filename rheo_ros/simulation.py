@@ -25,9 +25,12 @@ class Rates:
 def simulate_record(
     mesh: Mesh, model: Model, gamma: float | None, profile: StageProfile,
     rates: Rates = Rates(), density: float = 1.5e3, omega: float = 1.0e3, source: str = "simulation",
+    refine: int = 1, segment_edges: np.ndarray | None = None,
 ) -> Record:
-    """Run the dynamic FE model once and sample each topic at its own rate."""
-    fe = DynamicFE(mesh, model.rheology(), gamma, density=density, omega=omega)
+    """Run the dynamic FE model once (on ``mesh`` refined ``refine`` times, see
+    ``DynamicFE``) and sample each topic at its own rate, noise-free."""
+    fe = DynamicFE(mesh, model.rheology(), gamma, density=density, omega=omega, refine=refine,
+                   segment_edges=segment_edges)
     grids = [sample_times(profile.t_end, rate) for rate in (rates.stage, rates.force, rates.markers)]
     t = np.unique(np.concatenate(grids))
     result = fe.simulate(profile, t)

@@ -186,3 +186,28 @@ def test_frictionless_block_is_identified_with_the_frictionless_choice():
     wrong = _fit_with(Setup(load_params(None)), 2, record).relative_errors(TABLE_IV)
     assert all(abs(e) < 1e-6 for e in right.values()), right
     assert wrong["E"] < -3.0 and wrong["gamma"] < -10.0, wrong
+
+
+@pytest.mark.parametrize("speed", [0.5e-3, 2e-3, 20e-3])
+def test_slow_release_is_identified_by_the_fit_that_follows_the_contact(speed):
+    """Noise-free data of the dynamic FE simulator (17 x 17 nodes, inertia, one-sided
+    contact found inside the step) with the stage retracting at ``speed``; the paper's
+    0.5 mm/s keeps the specimen on the stage for 13.5 s. The fit (quasi-static model,
+    same mesh) follows the contact: measured |error| <= 0.004 % at every speed; the
+    issue's tolerance 0.1 %. The closed form warns where it cannot follow (measured:
+    -7 % at 0.5 mm/s)."""
+    from rheo_ros.simulation import simulate_record
+
+    setup = Setup(load_params(None))
+    edges = setup.tactile.segment_edges
+    model = Model(three_element(TABLE_IV["E"], TABLE_IV["c1"], TABLE_IV["c2"]))
+    profile = StageProfile(keep_time=48.0, release_time=60.0, retract_speed=speed)
+    record = simulate_record(setup.mesh, model, TABLE_IV["gamma"], profile, refine=4, segment_edges=edges)
+    fit = _fit_with(setup, 4, record).relative_errors(TABLE_IV)
+    assert all(abs(e) < 0.1 for e in fit.values()), fit
+    closed = identify_paper(record)
+    if speed == 0.5e-3:
+        assert "slow release" in closed.message and closed.residual_rms["release_follow_s"] > 10
+        assert closed.relative_errors(TABLE_IV)["c2"] < -5.0
+    else:
+        assert "slow release" not in closed.message

@@ -184,3 +184,53 @@ def test_user_effect_registers_and_resolves_by_id():
     assert model.parameters["test_softening.factor"] == 0.5
     with pytest.raises(KeyError, match="unknown effect"):
         effect_class("no_such_effect")
+
+
+def test_one_sided_retraction_matches_an_ode_solver_with_a_contact_event():
+    """A stage retracting at 1/4 of the pull speed (Table I element): the specimen
+    follows it while the stress is positive, then recovers freely. Reference: the
+    three-element ODE (Voigt strain and dashpot strain) integrated by scipy's Radau with
+    an event at zero stress - another discretisation. Tolerance 1e-6 of the depth and of
+    the peak stress (the solver's rtol 1e-10)."""
+    from scipy.integrate import solve_ivp
+
+    speed = V / 4
+    prog = Program.push_hold_release(D, T_P, 5.0, retract_speed=speed)
+    t_keep_end = T_P + 5.0
+
+    def driven(t, y, rate):            # y = (Voigt strain, dashpot strain)
+        ev = (C2 * rate - E * y[0]) / (C1 + C2)
+        return [ev, rate - ev]
+
+    def stress(y, rate):
+        return C2 * (rate - (C2 * rate - E * y[0]) / (C1 + C2))
+
+    pull = solve_ivp(driven, (0, T_P), [0, 0], args=(V,), method="Radau", rtol=1e-10, atol=1e-14)
+    keep = solve_ivp(driven, (T_P, t_keep_end), pull.y[:, -1], args=(0.0,), method="Radau", rtol=1e-10, atol=1e-14)
+    contact = lambda t, y, rate: stress(y, rate)
+    contact.terminal = True
+    follow = solve_ivp(driven, (t_keep_end, t_keep_end + D / speed), keep.y[:, -1], args=(-speed,), method="Radau",
+                       rtol=1e-10, atol=1e-14, events=contact)
+    t_release = follow.t_events[0][0]
+    y_release = follow.y_events[0][0]
+    free = solve_ivp(lambda t, y: [-E * y[0] / C1, 0.0], (t_release, t_release + 30), y_release, method="Radau",
+                     rtol=1e-10, atol=1e-14, dense_output=True)
+
+    r = respond(three_element(E, C1, C2), prog, np.array([t_keep_end + 1.0, t_release + 10.0]))
+    assert r.t_release > t_keep_end + 1.0          # it did follow the stage
+    assert abs(r.t_release - t_release) < 1e-6 * T_P
+    follow_at = solve_ivp(driven, (t_keep_end, t_keep_end + 1.0), keep.y[:, -1], args=(-speed,), method="Radau",
+                          rtol=1e-10, atol=1e-14)
+    assert abs(r.strain[0] - (D - speed * 1.0)) < 1e-12
+    peak = stress(pull.y[:, -1], V)
+    assert abs(r.stress[0] - stress(follow_at.y[:, -1], -speed)) < 1e-6 * peak
+    assert abs(r.strain[1] - free.sol(t_release + 10.0).sum()) < 1e-6 * D
+    assert r.stress[1] == 0.0 and abs(r.stress_released) < 1e-9 * peak
+
+
+def test_a_fast_retraction_lets_go_at_once():
+    fast = respond(three_element(E, C1, C2), Program.push_hold_release(D, T_P, T_K, retract_speed=100 * V),
+                   np.array([T_P + T_K + 1.0]))
+    instant = respond(three_element(E, C1, C2), Program.push_hold_release(D, T_P, T_K), np.array([T_P + T_K + 1.0]))
+    assert fast.t_release == T_P + T_K
+    assert abs(fast.strain[0] - instant.strain[0]) < 1e-12 * D

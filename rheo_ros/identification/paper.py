@@ -28,6 +28,8 @@ from scipy.optimize import least_squares
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import lame_per_unit_modulus
 from rheo_ros.identification.estimate import Estimate
+from rheo_ros.models.elements import three_element
+from rheo_ros.models.response import respond
 from rheo_ros.record import Record, RecordError
 
 Method = Literal["auto", "long_time", "short_time"]
@@ -233,14 +235,35 @@ def identify_paper(
             params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
+    follow = followed_stage_for(params, profile)
+    slow = ""
+    if follow > 0.5 / _rate(record.force_t):
+        slow = (f"; WARNING: slow release: the specimen follows the retracting stage for {follow:.3g} s "
+                f"(at {1e3 * profile.retract_speed:.3g} mm/s, by these values) and keeps creeping; eq. 14-17 "
+                "assume an instant release, so E, c1, c2 come out low (7 % at the paper's 0.5 mm/s): "
+                "use the whole-record fit, which follows the contact")
     return Estimate(
         params=params,
         method=f"paper_{method}",
         equations=_node_labels(nodes, mesh.geometry, eqs),
-        residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std},
+        residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std,
+                      "release_follow_s": follow},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
-                 f"final displacements averaged over {t_last - since:.3g} s"),
+                 f"final displacements averaged over {t_last - since:.3g} s{slow}"),
     )
+
+
+def followed_stage_for(params: dict[str, float], profile: StageProfile) -> float:
+    """How long (s) a specimen with the three-element ``params`` stays on the stage
+    as it retracts (0: it lets go at once)."""
+    element = three_element(params["E"], params["c1"], params["c2"])
+    t_release = respond(element, profile.program(), np.array([profile.t_keep_end])).t_release
+    return float(t_release - profile.t_keep_end)
+
+
+def _rate(t: np.ndarray) -> float:
+    """Sample rate (1/s) of stamps ``t``."""
+    return 1.0 / float(np.median(np.diff(t)))
 
 
 def _solve_equations(

@@ -1,9 +1,13 @@
 """Exact response of a linear rheological element to a loading program.
 
 A program is a sequence of segments, each either strain-controlled at a constant
-strain rate (pull, keep) or stress-free (release: free recovery). Within a segment
-the element is a linear time-invariant system with constant input, so the response
-is exact: a matrix exponential and its integral, no time stepping.
+strain rate (pull, keep, a stage retracting) or stress-free (release: free
+recovery). Within a segment the element is a linear time-invariant system with
+constant input, so the response is exact: a matrix exponential and its integral, no
+time stepping. A one-sided segment (the stage only pushes) ends where the stress
+reaches zero: the specimen follows a slowly retracting stage while it still presses
+on it, then recovers freely; that instant is found to machine precision by a root
+finder on the exact stress.
 
 The element is realised in state space from ``G(s) = Q(s)/s``: input the strain
 rate, output the stress. ``G`` is proper for every spring-dashpot network (at high
@@ -13,11 +17,11 @@ frequency ``Q`` grows at most like a dashpot, ``c*s``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 from scipy import signal
 from scipy.linalg import expm
+from scipy.optimize import brentq
 
 from rheo_ros.models.elements import Element
 
@@ -25,10 +29,13 @@ from rheo_ros.models.elements import Element
 @dataclass(frozen=True)
 class Segment:
     """``duration`` in s (``inf`` for an open end); ``strain_rate`` in 1/s, or
-    ``None`` for a stress-free segment (the specimen recovers freely)."""
+    ``None`` for a stress-free segment (the specimen recovers freely).
+    ``one_sided``: the drive only pushes; the segment ends early where the stress
+    reaches zero, and the segments after it start there (the next must be stress-free)."""
 
     duration: float
     strain_rate: float | None
+    one_sided: bool = False
 
 
 @dataclass(frozen=True)
@@ -40,29 +47,28 @@ class Program:
 
     @classmethod
     def push_hold_release(
-        cls, depth: float, pull_time: float, keep_time: float, t0: float = 0.0
+        cls, depth: float, pull_time: float, keep_time: float, t0: float = 0.0, retract_speed: float = np.inf,
     ) -> Program:
-        """The paper's Fig. 2(b): pull at ``depth/pull_time``, keep, then release."""
-        return cls(
-            t0,
-            (
-                Segment(pull_time, depth / pull_time),
-                Segment(keep_time, 0.0),
-                Segment(np.inf, None),
-            ),
-        )
-
-    @cached_property
-    def boundaries(self) -> np.ndarray:
-        """Start time of each segment, then the end of the last one."""
-        return self.t0 + np.concatenate([[0.0], np.cumsum([s.duration for s in self.segments])])
+        """The paper's Fig. 2(b): pull at ``depth/pull_time``, keep, then release: at
+        once, or by a stage retracting at ``retract_speed`` that the specimen follows
+        while it presses on it."""
+        release: tuple[Segment, ...] = (Segment(np.inf, None),)
+        if np.isfinite(retract_speed):
+            release = (Segment(depth / retract_speed, -retract_speed, one_sided=True),) + release
+        return cls(t0, (Segment(pull_time, depth / pull_time), Segment(keep_time, 0.0)) + release)
 
 
 @dataclass(frozen=True)
 class Response:
+    """Stress and strain at times ``t``; ``t_release``: when the first stress-free
+    segment began (None: not in the program), ``stress_released``: the stress just
+    before it (what adhesion keeps)."""
+
     t: np.ndarray
     stress: np.ndarray
     strain: np.ndarray
+    t_release: float | None = None
+    stress_released: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -119,8 +125,9 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
     is the one just after it (a strain-rate step makes the stress jump).
 
     Raises:
-        ValueError: ``t`` not sorted, or a stress-free segment for an element that
-            cannot recover (a pure spring has no internal state to relax).
+        ValueError: ``t`` not sorted, a stress-free segment for an element that
+            cannot recover (a pure spring has no internal state to relax), or a
+            strain-controlled segment after a one-sided one let go.
     """
     t = np.asarray(t, dtype=float)
     if np.any(np.diff(t) < 0):
@@ -129,9 +136,18 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
     n = ss.A.shape[0]
     stress, strain = np.zeros_like(t), np.zeros_like(t)
     x, eps = np.zeros(n), 0.0
-    edges = program.boundaries
+    start, let_go = program.t0, False
+    t_release, stress_released = None, 0.0
     for k, seg in enumerate(program.segments):
-        start, end = edges[k], edges[k + 1]
+        end = start + seg.duration
+        if seg.one_sided and seg.strain_rate is not None:
+            tau = _first_zero_stress(ss, x, seg.strain_rate, seg.duration)
+            let_go, end = tau < seg.duration, start + tau
+        elif let_go and seg.strain_rate is not None:
+            raise ValueError("a strain-controlled segment after the drive let go")
+        if seg.strain_rate is None and t_release is None:
+            t_release = start
+            stress_released = float(x @ ss.C + ss.D * program.segments[k - 1].strain_rate) if k else 0.0
         last = k == len(program.segments) - 1
         mask = (t >= start) & ((t < end) | (last & (t >= end)))
         taus = t[mask] - start
@@ -153,7 +169,31 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
         strain[mask] = eps_s[: taus.size]
         if tau_end.size:
             x, eps = xs[-1], float(eps_s[-1])
-    return Response(t, stress, strain)
+        start = end
+    return Response(t, stress, strain, t_release, stress_released)
+
+
+def _first_zero_stress(ss: StateSpace, x: np.ndarray, rate: float, duration: float) -> float:
+    """Time into a segment driven at ``rate`` from state ``x`` at which the stress first
+    reaches zero; ``duration`` if it stays positive throughout.
+
+    The stress is bracketed on a grid, then the root is polished by Brent's method
+    on the exact expression (a retracting drive lowers the stress monotonically for
+    spring-dashpot networks; the grid guards against a shallow start)."""
+    def stress(taus: np.ndarray) -> np.ndarray:
+        E, P = _propagators(ss.A, taus)
+        return (E @ x + (P @ ss.B) * rate) @ ss.C + ss.D * rate
+
+    grid = np.linspace(0.0, duration, 65)
+    values = stress(grid)
+    if values[0] <= 0.0:
+        return 0.0
+    below = np.flatnonzero(values <= 0.0)
+    if below.size == 0:
+        return duration
+    i = below[0]
+    return float(brentq(lambda tau: float(stress(np.array([tau]))[0]), grid[i - 1], grid[i],
+                        xtol=1e-12 * duration, rtol=8.9e-16))
 
 
 def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -41,6 +41,28 @@ class PhaseEvent:
     samples: int
 
 
+class _Line:
+    """Least-squares line ``depth = a + b (t - t0)`` through samples given one by one."""
+
+    def __init__(self, t0: float) -> None:
+        self.t0 = t0
+        self.n = self.st = self.sd = self.stt = self.std = 0.0
+
+    def add(self, t: float, depth: float) -> None:
+        x = t - self.t0
+        self.n += 1
+        self.st, self.sd, self.stt, self.std = self.st + x, self.sd + depth, self.stt + x * x, self.std + x * depth
+
+    def slope(self) -> float:
+        """The line's slope (m/s); 0 with fewer than two distinct times."""
+        det = self.n * self.stt - self.st**2
+        return (self.n * self.std - self.st * self.sd) / det if self.n >= 2 and det > 0 else 0.0
+
+    def time_at(self, depth: float) -> float:
+        b = self.slope()
+        return self.t0 + (depth - (self.sd - b * self.st) / self.n) / b
+
+
 def _robust_spread(x: np.ndarray) -> float:
     """Standard deviation from the median absolute deviation (outliers ignored)."""
     return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
@@ -208,13 +230,16 @@ class PhaseSegmenter:
         rt, rd = np.array(self._run).T
         t_leave, retract_speed = float(rt[0]), float("inf")
         on_ramp = (rd > 0.05 * level) & (rd < level - tol)
-        if on_ramp.sum() >= 2:
-            # One line through the retraction: where it leaves the level, and its speed.
-            slope, icept = np.polyfit(rt[on_ramp], rd[on_ramp], 1)
-            if slope < 0:
-                t_leave = float(np.clip((level - icept) / slope, self._last_held_t, rt[0]))
-                retract_speed = float(-slope)
+        self._retraction = _Line(float(rt[0]))
+        for tr, dr in zip(rt[on_ramp], rd[on_ramp]):
+            self._retraction.add(tr, dr)
         t_pull_end = self._t_pull[1]
+        if (slope := self._retraction.slope()) < 0:
+            # One line through the retraction: where it leaves the level (a slow one takes
+            # several samples to leave the tolerance band), and its speed.
+            t_leave = float(np.clip(self._retraction.time_at(level), t_pull_end, rt[0]))
+            retract_speed = -slope
+        self._retraction_band = (0.05 * level, level - tol)
         self._level = level
         self.profile = replace(self.profile, depth=level, keep_time=max(t_leave - t_pull_end, 0.0),
                                release_time=0.0, retract_speed=retract_speed)
@@ -231,6 +256,8 @@ class PhaseSegmenter:
         # The stage is back near rest once it is below 5 % of the push; a new push is
         # a confirmed rise from there.
         self._release_min = min(self._release_min, depth)
+        if self._retraction_band[0] < depth < self._retraction_band[1]:
+            self._retraction.add(t, depth)   # the retraction's speed from all of its samples (at release end)
         if self._release_min > 0.05 * self._level:
             return []
         base = float(np.median(np.fromiter(self._release_rest, float))) if self._release_rest else depth
@@ -354,7 +381,9 @@ class PhaseSegmenter:
     def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
         t_release = self._t_release
         n = sum(1 for tf, _ in self._frames if t_release < tf <= t_end)
-        self.profile = replace(self.profile, release_time=max(t_end - t_release, 0.0))
+        slope = self._retraction.slope()
+        self.profile = replace(self.profile, release_time=max(t_end - t_release, 0.0),
+                               retract_speed=-slope if slope < 0 else self.profile.retract_speed)
         self.release_reason = why
         # The stage stream goes back to rest once it passes the release's end.
         self.state, self._settled_at = ("settled", t_end) if why != "next push" else ("rest", t_end)
