@@ -80,10 +80,15 @@ class StageProfile:
         retracting = (t >= self.t_keep_end) & (t < self.t_keep_end + self.depth / self.retract_speed)
         return np.where(retracting, -self.retract_speed, v)
 
+    @property
+    def t_retracted(self) -> float:
+        """When the stage is back at depth 0 (s): from then on nothing presses the specimen."""
+        return self.t_keep_end + self.depth / self.retract_speed
+
     def knots(self) -> list[tuple[float, float]]:
         """Breakpoints ``(t, depth)`` of the piecewise-linear stage motion; an instant
         release appears as two knots at the same time."""
-        t_back = self.t_keep_end + self.depth / self.retract_speed
+        t_back = self.t_retracted
         return [(self.t_pull_start, 0.0), (self.t_pull_end, self.depth), (self.t_keep_end, self.depth),
                 (t_back, 0.0)]
 

@@ -24,6 +24,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import Element, three_element
 from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
+from rheo_ros.record import Record
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
 DEFAULTS: dict[str, Any] = {
@@ -281,6 +282,19 @@ class Setup:
                             depth=p["specimen.thickness"], nodes=self.mesh.cols,
                             noise=p["tactile.noise"], resolution=p["tactile.resolution"],
                             threshold=p["tactile.threshold"])
+
+    def record(self, stage_t: np.ndarray, stage_depth: np.ndarray, tactile_t: np.ndarray, images: np.ndarray,
+               marker_t: np.ndarray, markers: np.ndarray, source: str = "<memory>") -> Record:
+        """The ``Record`` of these sensor outputs: tactile images (T, rows, cols) in Pa
+        summed into segment forces, with the array's dead band.
+
+        Raises:
+            RecordError: the samples do not make a record (names the field).
+        """
+        tactile = self.tactile
+        return Record(mesh=self.mesh, stage_t=stage_t, stage_depth=stage_depth, force_t=tactile_t,
+                      force=tactile.nodal_forces(images), marker_t=marker_t, markers=markers, source=source,
+                      dead_band=tactile.dead_band)
 
     @property
     def camera(self) -> MarkerCamera:

@@ -9,6 +9,7 @@ import numpy as np
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
+from rheo_ros.sensors import DeadBand
 
 
 class RecordError(ValueError):
@@ -27,6 +28,7 @@ class Record:
         source: where the data came from, for messages.
         stage_profile: the phases when already known (the online segmenter's, for a
             run still in progress); ``None``: read off the stage samples.
+        dead_band: where the tactile segments' readings are live (``None``: everywhere).
     """
 
     mesh: Mesh
@@ -38,6 +40,7 @@ class Record:
     markers: np.ndarray
     source: str = "<memory>"
     stage_profile: StageProfile | None = None
+    dead_band: DeadBand | None = None
 
     def __post_init__(self) -> None:
         checks = [

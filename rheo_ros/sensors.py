@@ -16,6 +16,26 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class DeadBand:
+    """Where a tactile segment's reading stops being its force plus zero-mean noise.
+
+    A cell reads zero below the threshold (and for tension), so a segment whose cells
+    are near it reads too little or nothing: only a segment force at least
+    ``force`` (N, per node: its cells at the threshold) plus three cell noise stds per
+    cell is a live reading. ``cells``: cells per segment.
+    """
+
+    force: np.ndarray
+    cells: np.ndarray
+
+    def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
+        """(T, nodes) mask of live readings for segment forces (T, nodes) in N, given
+        each segment's noise std (N): three cell stds above the threshold in every cell
+        (a segment's std is sqrt(cells) cell stds, its margin cells x 3 cell stds)."""
+        return np.asarray(force) >= self.force + 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
+
+
+@dataclass(frozen=True)
 class TactileArray:
     """Cell grid ``rows`` (z) x ``cols`` (x) under a face ``width`` (x) by ``depth`` (z), in m.
 
@@ -53,6 +73,11 @@ class TactileArray:
     def columns_per_segment(self) -> np.ndarray:
         """(nodes,): columns each bottom node owns (0: that node's force cannot be read)."""
         return np.bincount(self.segment, minlength=self.nodes)
+
+    @cached_property
+    def dead_band(self) -> DeadBand:
+        cells = self.columns_per_segment * self.rows
+        return DeadBand(self.threshold * cells * self.cell_area, cells)
 
     @property
     def cell_area(self) -> float:

@@ -122,9 +122,21 @@ class Run:
     markers: np.ndarray      # (Tm, N, 2) m
 
 
-def simulate_run(setup: Setup, seed: int = 0) -> Run:
-    """The whole run at once: the same FE model, effects and sensors as ``Simulator``,
-    vectorised over the samples (what ``rheo simulate`` writes)."""
+@dataclass(frozen=True)
+class CleanRun:
+    """What the sensors would report without noise: the FE model's run, once."""
+
+    stage_t: np.ndarray
+    stage_depth: np.ndarray
+    stage_velocity: np.ndarray
+    tactile_t: np.ndarray
+    pressure: np.ndarray     # (T, rows, cols) Pa, noise-free
+    marker_t: np.ndarray
+    positions: np.ndarray    # (Tm, N, 2) m, noise-free
+
+
+def simulate_clean(setup: Setup) -> CleanRun:
+    """The FE model with its effects over the whole profile, vectorised over the samples."""
     p, profile, mesh = setup.params, setup.profile, setup.mesh
     model = setup.model()
     fe = setup.dynamic_fe(model.rheology())
@@ -134,8 +146,21 @@ def simulate_run(setup: Setup, seed: int = 0) -> Run:
     t = np.union1d(tactile_t, marker_t)
     res = fe.simulate(profile, t)
     felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)
-    tactile_seq, marker_seq = np.random.SeedSequence(seed).spawn(2)
     ti, mi = np.searchsorted(t, tactile_t), np.searchsorted(t, marker_t)
-    images = setup.tactile.read(setup.tactile.pressure(felt[ti]), np.random.default_rng(tactile_seq))
-    markers = setup.camera.observe(mesh.nodes[None] + res.displacement[mi], np.random.default_rng(marker_seq))
-    return Run(stage_t, depth, velocity, tactile_t, images, marker_t, markers)
+    return CleanRun(stage_t, depth, velocity, tactile_t, setup.tactile.pressure(felt[ti]), marker_t,
+                    mesh.nodes[None] + res.displacement[mi])
+
+
+def observe(setup: Setup, clean: CleanRun, seed: int = 0) -> Run:
+    """The sensors' reports of a clean run: the same noise as ``Simulator`` for ``seed``."""
+    tactile_seq, marker_seq = np.random.SeedSequence(seed).spawn(2)
+    images = setup.tactile.read(clean.pressure, np.random.default_rng(tactile_seq))
+    markers = setup.camera.observe(clean.positions, np.random.default_rng(marker_seq))
+    return Run(clean.stage_t, clean.stage_depth, clean.stage_velocity, clean.tactile_t, images,
+               clean.marker_t, markers)
+
+
+def simulate_run(setup: Setup, seed: int = 0) -> Run:
+    """The whole run at once: the same FE model, effects and sensors as ``Simulator``,
+    vectorised over the samples (what ``rheo simulate`` writes)."""
+    return observe(setup, simulate_clean(setup), seed)

@@ -216,23 +216,24 @@ def test_a_keep_far_shorter_than_the_relaxation_time_leaves_c2_undetermined():
         assert abs(final.params["c2"] - TRUTH["c2"]) < 3 * final.std["c2"]
 
 
-def test_a_release_the_closed_form_cannot_solve_still_gets_the_whole_record_fit():
-    """A 2 mm push held 2 s: the final displacement is too small for eq. 14-17 (no
-    solution of the right sign); the release update is the fit of all the data, started
-    from the keep's fit, and says why."""
+def test_a_shallow_short_push_gets_a_closed_form_from_the_nodes_above_the_noise_and_a_calibrated_fit():
+    """A 2 mm push held 2 s: at some nodes the final displacement is within the marker
+    noise and eq. 14-17 get the wrong sign there; the closed form leaves them out and says
+    so, and the release's fit of all the data reports values within 3 std of the truth."""
     setup, run, force = simulated({"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2.0,
                                    "stage.release_time": 30.0})
     msgs = messages(run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers)
     _, updates, errors = estimate_stream(OnlineEstimator(setup), msgs)
     assert errors == []
+    closed = [u for u in updates if u.phase == "release" and u.method.startswith("paper_")]
+    assert closed and "left out of the equations" in closed[0].message
     last = updates[-1]
     assert (last.phase, last.method) == ("release", "whole_record")
-    assert last.message.startswith("closed form failed")
-    assert set(last.undetermined) == {"E", "c2"}       # a 2 s keep shows no relaxation
-    # Within 1 %: forces this small sit near the tactile dead band, which the fit's
-    # noise model ignores (its std is not calibrated here: the honest-identification issue).
+    determined = [n for n in last.names if n not in last.undetermined]
+    assert {"c1", "gamma"} <= set(determined)
+    for n in determined:
+        assert abs(last.params[n] - TRUTH[n]) < 3 * last.std[n], n   # measured within 2.0 std
     assert abs(last.params["c1"] / TRUTH["c1"] - 1) < 0.01
-    assert abs(last.params["gamma"] / TRUTH["gamma"] - 1) < 0.01
 
 
 def test_without_refinement_the_release_closed_form_is_the_final_update(clean_updates):

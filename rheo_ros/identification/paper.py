@@ -19,7 +19,7 @@ and drop nothing but noise. ``nodes=(1, 2, 3)`` gives the paper's P2-P4.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -28,6 +28,7 @@ from scipy.optimize import least_squares
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import lame_per_unit_modulus
 from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.models.elements import three_element
 from rheo_ros.models.response import respond
 from rheo_ros.record import Record, RecordError
@@ -196,6 +197,46 @@ SETTLED_VOIGT_TIMES = 15.0
 MIN_FINAL_WINDOW = 2.0  # s
 
 
+BASELINE_GUARD = 0.5      # s between a zero-force window and the pull or the stage's return
+BASELINE_SIGNIFICANT = 3.0  # a baseline this many of a node's noise stds from zero is corrected
+
+
+def zero_force_baseline(record: Record) -> tuple[np.ndarray, str]:
+    """The tactile reading when nothing presses the specimen, per node, over the record.
+
+    Before the pull and after the stage is back at depth 0 the specimen's bottom force
+    is zero; what the segments read there is the sensor's own baseline. A line through
+    both windows (a constant with one) models an offset and a drift. Returns the
+    baseline (T, nodes) in N to subtract, zero unless some node's lies more than
+    ``BASELINE_SIGNIFICANT`` noise stds from zero during the push, and a warning.
+    """
+    profile, t, force = record.profile(), record.force_t, record.force
+    zero = (t < profile.t_pull_start - BASELINE_GUARD) | (t > profile.t_retracted + BASELINE_GUARD)
+    none = np.zeros_like(force)
+    if zero.sum() < 5:
+        return none, ""
+    during = (t >= profile.t_pull_start) & (t <= profile.t_keep_end)
+    after = zero & (t > profile.t_pull_start)
+    if after.sum() >= 5 and (zero & ~after).sum() >= 5:
+        slope, offset = np.polyfit(t[zero], force[zero], 1)
+    else:
+        slope, offset = np.zeros(force.shape[1]), force[zero].mean(axis=0)
+    baseline = offset[None] + slope[None] * t[:, None]
+    noise = np.nan_to_num(sensor_noise(record).force_std, nan=np.inf)
+    size = np.abs(baseline[during]).max(axis=0) if during.any() else np.zeros(force.shape[1])
+    if not np.any(size > BASELINE_SIGNIFICANT * noise):
+        return none, ""
+    return baseline, (f"; WARNING: the tactile baseline is not zero where nothing presses: up to "
+                      f"{size.max():.3g} N per node during the push (drift {np.abs(slope).max():.3g} N/s); "
+                      "subtracted a line through the readings before the pull and after the stage's "
+                      "return (a drifting or offset sensor: rheo analyze diagnoses it)")
+
+
+def _without_baseline(record: Record) -> tuple[Record, str]:
+    baseline, note = zero_force_baseline(record)
+    return (replace(record, force=record.force - baseline), note) if note else (record, "")
+
+
 def identify_paper(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
     guard: float = 0.1, final_window: float | None = None,
@@ -218,6 +259,7 @@ def identify_paper(
     Raises:
         RecordError: a phase too short to fit, or data the model cannot explain.
     """
+    record, baseline = _without_baseline(record)
     profile = record.profile()
     mesh = record.mesh
     nodes = np.arange(mesh.cols) if nodes is None else np.asarray(nodes)
@@ -227,12 +269,14 @@ def identify_paper(
         method = "long_time" if relaxed < 0.01 else "short_time"
     t_last = record.marker_t[-1]
     since = t_last - (MIN_FINAL_WINDOW if final_window is None else final_window)
-    params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
+    params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
+                                            final_displacement(record, since))
     if final_window is None:
         settled = profile.t_keep_end + SETTLED_VOIGT_TIMES * params["c1"] / params["E"]
         if settled < since:
             since = settled
-            params, rms = _solve_equations(record, curves, profile, nodes, method, final_displacement(record, since))
+            params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
+                                                    final_displacement(record, since))
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
     follow = followed_stage_for(params, profile)
@@ -249,7 +293,7 @@ def identify_paper(
         residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std,
                       "release_follow_s": follow},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
-                 f"final displacements averaged over {t_last - since:.3g} s{slow}"),
+                 f"final displacements averaged over {t_last - since:.3g} s{dropped_note(dropped)}{slow}{baseline}"),
     )
 
 
@@ -269,8 +313,8 @@ def _rate(t: np.ndarray) -> float:
 def _solve_equations(
     record: Record, curves: ForceCurves, profile: StageProfile, nodes: np.ndarray, method: str,
     u_final: np.ndarray,
-) -> tuple[dict[str, float], float]:
-    """Eq. 6 (+14), 10 or 17 over the nodes; -> params, RMS residual.
+) -> tuple[dict[str, float], float, tuple[int, ...]]:
+    """Eq. 6 (+14), 10 or 17 over the nodes; -> params, RMS residual, nodes left out.
 
     Per node, with g = [K_gamma u_final] (J u_final of the paper) and eta = c1c2/(c1+c2):
       a = c2 g                                   (eq. 6; with eq. 14 short-time)
@@ -285,11 +329,15 @@ def _solve_equations(
 
 def solve_node_equations(
     record: Record, nodes: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, F_end: np.ndarray, r: float,
-) -> tuple[dict[str, float], float]:
+) -> tuple[dict[str, float], float, tuple[int, ...]]:
     """Solve ``a = c2 g`` and ``b = eta g + eta F_end / (r c2)`` over the bottom nodes by
-    least squares (Section IV.B), ``g = [K_gamma u]`` at each node; -> params, RMS residual.
+    least squares (Section IV.B), ``g = [K_gamma u]`` at each node; -> params, RMS
+    residual, and the nodes left out (0-based).
 
-    ``u`` (N, 2) is the displacement the equations refer to (u_keep or u_final).
+    ``u`` (N, 2) is the displacement the equations refer to (u_keep or u_final). A node
+    whose displacement term or force jumps have the wrong sign for a push (its signal
+    is within the noise: an edge node on a shallow push) is left out; the rest solve
+    the equations if they can (one node in 1D, two in 2D: three unknowns).
     """
     mesh = record.mesh
     u_dofs = u.ravel() if mesh.dofs_per_node == 2 else u[:, 1]
@@ -297,7 +345,6 @@ def solve_node_equations(
     K_lambda, K_mu = mesh.stiffness_parts
     g_lambda, g_mu = (K_lambda @ u_dofs)[bottom_y], (K_mu @ u_dofs)[bottom_y]
     plane = mesh.geometry == "plane_fe"
-    sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
 
     def g_of(gamma: float) -> np.ndarray:
         if not plane:
@@ -311,11 +358,16 @@ def solve_node_equations(
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
 
     g0 = g_of(0.3)
-    if np.any(g0 <= 0) or np.any(a <= 0) or np.any(b <= 0):
+    usable = (g0 > 0) & (a > 0) & (b > 0)
+    if usable.sum() < (2 if plane else 1):
         raise RecordError(
             f"{record.source}: markers/force: displacement or force jump has the wrong sign "
-            "for a push (no residual deformation, or no force drop at the end of pull)"
+            f"for a push at {', '.join(f'P{i + 1}' for i in nodes[~usable])} (no residual deformation, "
+            "or no force drop at the end of pull)"
         )
+    dropped = tuple(int(i) for i in nodes[~usable])
+    g_lambda, g_mu, a, b, F_end, g0 = (v[usable] for v in (g_lambda, g_mu, a, b, F_end, g0))
+    sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
     x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if plane else [])
     lo = [-np.inf, -np.inf] + ([-0.99] if plane else [])
     hi = [np.inf, np.inf] + ([0.4999] if plane else [])
@@ -327,7 +379,15 @@ def solve_node_equations(
     params = {"E": r * (c1 + c2), "c1": c1, "c2": c2}
     if plane:
         params["gamma"] = float(sol.x[2])
-    return params, float(np.sqrt(np.mean(sol.fun**2)))
+    return params, float(np.sqrt(np.mean(sol.fun**2))), dropped
+
+
+def dropped_note(dropped: tuple[int, ...]) -> str:
+    """The warning for nodes the equations left out (empty when none)."""
+    if not dropped:
+        return ""
+    return (f"; WARNING: {', '.join(f'P{i + 1}' for i in dropped)} left out of the equations: the wrong sign "
+            "for a push (its signal is within the noise; a deeper push determines it)")
 
 
 def _node_labels(nodes: np.ndarray, mesh_geometry: str, eqs: list[str]) -> tuple[str, ...]:
@@ -346,12 +406,13 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
     ``Estimate.residual_rms['rate_rel_std']`` says how far the pull's curvature pins
     the rate (and with it E and c2) down.
     """
+    record, baseline = _without_baseline(record)
     profile = record.profile()
     nodes = np.arange(record.mesh.cols) if nodes is None else np.asarray(nodes)
     curve = fit_pull_curve(record.force_t, record.force[:, nodes], profile, guard, record.source)
     u_keep = displacement_at_depth(record, profile.depth)
     t_P = profile.pull_time
-    params, rms = solve_node_equations(record, nodes, u_keep, curve.asymptote * t_P, curve.start * t_P,
+    params, rms, dropped = solve_node_equations(record, nodes, u_keep, curve.asymptote * t_P, curve.start * t_P,
                                        np.zeros_like(curve.start), curve.rate)
     return Estimate(
         params=params, method="paper_pull",
@@ -359,7 +420,7 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
         residual_rms={"force_fit": curve.residual_rms, "equations": rms, "rate_rel_std": curve.rate_rel_std,
                       "rate_x_pull_time": curve.rate * t_P},
         message=f"relaxation rate {curve.rate:.4g} 1/s +- {100 * curve.rate_rel_std:.3g} % from the pull's curvature "
-                f"(rate x t_P = {curve.rate * t_P:.3g})",
+                f"(rate x t_P = {curve.rate * t_P:.3g}){dropped_note(dropped)}{baseline}",
     )
 
 
@@ -370,17 +431,19 @@ def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: flo
     camera sees ``u_keep`` during the keep, and with it eq. 6 and 10 hold exactly in the
     long- and the short-time case alike (eq. 17 with eq. 14 is eq. 10 in ``u_keep``).
     """
+    record, baseline = _without_baseline(record)
     profile = record.profile()
     nodes = np.arange(record.mesh.cols) if nodes is None else np.asarray(nodes)
     curves = fit_force_curves(record.force_t, record.force[:, nodes], profile, guard, record.source)
     u_keep = displacement_during(record, profile.t_pull_end + guard, profile.t_keep_end - guard)
-    params, rms = _solve_equations(record, curves, profile, nodes, "long_time", u_keep)
+    params, rms, dropped = _solve_equations(record, curves, profile, nodes, "long_time", u_keep)
     relaxed = float(np.sum(np.abs(curves.keep_end)) / np.sum(np.abs(curves.keep_start)))
     return Estimate(
         params=params, method="paper_keep",
         equations=_node_labels(nodes, record.mesh.geometry, ["eq.6", "eq.7", "eq.10 with u_keep"]),
         residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std},
-        message=f"keep force relaxed to {100 * relaxed:.3g} % of its start; u_keep from the keep's marker frames",
+        message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; u_keep from the keep's marker frames"
+                 f"{dropped_note(dropped)}{baseline}"),
     )
 
 

@@ -16,6 +16,7 @@ from scipy.special import expit, logit
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.quasistatic import Prediction, QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
@@ -27,6 +28,17 @@ SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the
 # measured difference (h to h/2) times 1 / (1 - 2^-p). `rheo bench mesh` gives p ~ 1.3-1.4
 # (E: 0.079 % at refine 4, 0.031 % at 8, ~0.012 % at 16): 1 / (1 - 2^-1.3) = 1.68.
 DISCRETISATION_FACTOR = 1.7
+# Residual RMS over the noise the data show (second differences) above this: a misfit.
+# A right model gives 1 within the two estimates' spread, ~1.3 / sqrt(samples) (RMS
+# 0.7, the differences' median absolute deviation ~1.1), measured by `rheo bench
+# calibration`: up to 1.06 on ~3000 live readings, 1.17 on a shallow push's few hundred.
+MISFIT_RATIO = 1.25
+MISFIT_SIGMAS = 5.0
+
+
+def misfit_limit(samples: int) -> float:
+    """The largest residual-to-noise ratio a right model shows on ``samples`` readings."""
+    return max(MISFIT_RATIO, 1.0 + MISFIT_SIGMAS * 1.3 / np.sqrt(max(samples, 1)))
 
 
 @dataclass
@@ -41,6 +53,8 @@ class WholeRecordProblem:
         guard: force samples this close (s) to a phase boundary are left out: the
             measured force is mid-jump there, the quasi-static model has jumped.
         forward: the forward model (default: the record's marker grid, nodal forces).
+        live: (T, nodes) the force readings that count (default: all); readings in
+            or near the tactile dead band are biased towards zero and left out.
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -54,6 +68,7 @@ class WholeRecordProblem:
     profile: StageProfile | None = None
     guard: float = 0.05
     forward: QuasiStaticFE | None = None
+    live: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
@@ -61,10 +76,20 @@ class WholeRecordProblem:
         t = self.record.force_t
         self._use = np.abs(t[:, None] - edges[None]).min(axis=1) >= self.guard
         self._force = self.record.force[self._use]
+        self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.plane = self.record.mesh.geometry == "plane_fe"
         self.names = tuple(self.model.parameters) + (("gamma",) if self.plane else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
+
+    @property
+    def live_counts(self) -> np.ndarray:
+        """(nodes,) force readings fitted per node."""
+        return self._live.sum(axis=0)
+
+    @property
+    def marker_count(self) -> int:
+        return int(self._disp.size)
 
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k != "gamma"})
@@ -74,15 +99,18 @@ class WholeRecordProblem:
 
     def residuals(self, params: dict[str, float]) -> np.ndarray:
         p = self.predict(params)
-        rf = (p.force - self._force) / self.force_std
+        rf = ((p.force - self._force) / self.force_std)[self._live]
         rm = p.displacement - self._disp
         rm = (rm - rm.mean(axis=0)) / self.marker_std
         return np.concatenate([rf.ravel(), rm.ravel()])
 
     def group_rms(self, params: dict[str, float]) -> tuple[np.ndarray, float]:
-        """Unweighted RMS residual per node's force (N) and of the markers (m)."""
+        """Unweighted RMS residual per node's force over its live readings (N; NaN for
+        a node with none) and of the markers (m)."""
         p = self.predict(params)
-        rf = np.sqrt(np.mean((p.force - self._force) ** 2, axis=0))
+        sq = np.where(self._live, (p.force - self._force) ** 2, 0.0)
+        with np.errstate(invalid="ignore"):
+            rf = np.sqrt(sq.sum(axis=0) / self._live.sum(axis=0))
         rm = p.displacement - self._disp
         n = rm.shape[0]
         return rf, float(np.sqrt(np.sum((rm - rm.mean(axis=0)) ** 2) / (rm.size * (n - 1) / n)))
@@ -111,11 +139,12 @@ def refine(
     """
     model = model or Model(three_element(1.0, 1.0, 1.0))
     scale_f = np.abs(record.force).max(axis=0) * 1e-2 + 1e-12
+    noise = sensor_noise(record)
     problem = WholeRecordProblem(
         record, model,
         force_std if force_std is not None else scale_f,
         marker_std if marker_std is not None else 1e-5,
-        forward=forward,
+        forward=forward, live=noise.force_live,
     )
     fixed = fixed or {}
     all_names = problem.names
@@ -185,15 +214,30 @@ def refine(
         cov[free, free] += np.where(loose, 0.0, sys_std**2)
         systematic = {f"discretisation_{n}": float(v) for n, v in zip(names, sys_std)}
     rf, rm = problem.group_rms(params)
+    # NaN where the data show no noise (a noise-free simulation): no misfit figure then.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.append(rf, rm) / np.append(noise.force_std, noise.marker_std)
+    ratio = np.where(np.isfinite(ratio), ratio, np.nan)
+    fit_to_noise = dict(zip([f"P{i + 1}" for i in range(rf.size)] + ["markers"], ratio.tolist()))
+    samples = {**{f"P{i + 1}": int(n) for i, n in enumerate(problem.live_counts)}, "markers": problem.marker_count}
+    worst = {k: v for k, v in fit_to_noise.items() if v > misfit_limit(samples[k])}
+    if worst:
+        note += ("; WARNING: the model misfits: its residuals are " + ", ".join(
+            f"{v:.3g} x the sensor noise on {k}" for k, v in sorted(worst.items(), key=lambda kv: -kv[1]))
+            + " (expected 1): an effect the model lacks or a wrong set-up (boundary, geometry); "
+            "the std assume white residuals and understate the error")
     return Estimate(
         params=params,
         method="whole_record",
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
         covariance=cov,
-        residual_rms={"force": float(np.sqrt(np.mean(rf**2))), "markers": rm, "reduced_chi2": chi2,
+        residual_rms={"force": float(np.sqrt(np.nanmean(rf**2))), "markers": rm, "reduced_chi2": chi2,
                       "cost": cost, "marker_std": float(problem.marker_std),
                       **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
-                          problem.force_std, (record.mesh.cols,)))}, **systematic},
+                          problem.force_std, (record.mesh.cols,)))}, **systematic,
+                      **{f"noise_P{i + 1}": float(v) for i, v in enumerate(noise.force_std)},
+                      "noise_markers": noise.marker_std,
+                      **{f"fit_to_noise_{k}": v for k, v in fit_to_noise.items()}},
         message=f"{passes} pass(es); {sol.message}{note}",
     )
 

@@ -176,8 +176,7 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
                           f"{tactile.rows} x {tactile.cols}")
     if markers.shape[1:] != mesh.nodes.shape:
         raise RecordError(f"{path}: {MARKERS_TOPIC}: {markers.shape[1]} markers, parameters say {mesh.nodes.shape[0]}")
-    record = Record(mesh=mesh, stage_t=stage_t, stage_depth=stage[:, 0], force_t=tactile_t,
-                    force=tactile.nodal_forces(images), marker_t=marker_t, markers=markers, source=str(path))
+    record = setup.record(stage_t, stage[:, 0], tactile_t, images, marker_t, markers, str(path))
     return BagContents(record, params, tactile_t, images, stage[:, 1])
 
 

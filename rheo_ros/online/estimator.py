@@ -363,7 +363,8 @@ class OnlineEstimator:
                           force_t=parts["force"][0], force=parts["force"][1].reshape(-1, self.mesh.cols),
                           marker_t=parts["markers"][0],
                           markers=parts["markers"][1].reshape(-1, *self.mesh.nodes.shape),
-                          source=f"experiment {e.experiment} {e.name}", stage_profile=profile)
+                          source=f"experiment {e.experiment} {e.name}", stage_profile=profile,
+                          dead_band=self.tactile.dead_band)
         except RecordError:
             return None
 
