@@ -151,7 +151,8 @@ def test_refinement_through_the_sensor_path_recovers_the_material(name):
 
     bag = read_bag(BAGS / name)
     rec = bag.record
-    est = refine(rec, identify_paper(rec), forward=Setup(bag.params).forward_model())
+    forward = Setup(bag.params).forward_model()
+    est = refine(rec, identify_paper(rec, forward=forward), forward=forward)
     truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])

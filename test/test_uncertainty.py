@@ -24,7 +24,8 @@ def clean_bag():
 
 def fit_bag(bag):
     setup = Setup(bag.params)
-    return refine(bag.record, identify_paper(bag.record), forward=setup.forward_model())
+    forward = setup.forward_model()
+    return refine(bag.record, identify_paper(bag.record, forward=forward), forward=forward)
 
 
 def test_sensor_noise_comes_from_the_live_readings(clean_bag):
@@ -89,3 +90,18 @@ def test_the_closed_form_survives_sensor_drift_with_a_warning(clean_bag):
     # zero-force windows: measured E, c1, c2 within 2.2 % (without: no solution at all).
     assert all(abs(e) < 5.0 for e in est.relative_errors(truth).values())
     assert "baseline" not in identify_paper(clean_bag.record).message
+
+
+@pytest.mark.parametrize("name, tolerance", [("clean_short_keep", 0.5), ("clean_long_keep", 0.5)])
+def test_closed_form_on_the_converged_mesh_is_within_half_a_percent(name, tolerance):
+    """The paper's J u on the marker grid's own four elements across the face is too
+    stiff (measured on these bags: E -9.9 % / -7.8 %, gamma +39 % / +27 %); the force the
+    markers' displacement implies on the forward model's converged mesh fixes it
+    (measured: E, c1, c2 within 0.14 %, gamma within 2.3 %)."""
+    bag = read_bag(BAGS / name)
+    truth = {k: bag.params[f"material.{k}"] for k in ("E", "c1", "c2", "gamma")}
+    converged = identify_paper(bag.record, forward=Setup(bag.params).forward_model()).relative_errors(truth)
+    assert all(abs(converged[k]) < tolerance for k in ("E", "c1", "c2")), converged
+    assert abs(converged["gamma"]) < 5 * tolerance, converged
+    grid = identify_paper(bag.record).relative_errors(truth)
+    assert abs(grid["E"]) > 5.0 and abs(grid["gamma"]) > 20.0, grid

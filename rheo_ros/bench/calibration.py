@@ -48,7 +48,7 @@ def run_case(overrides: dict[str, Any], replicates: int, seed: int) -> dict[str,
         record = setup.record(run.stage_t, run.stage_depth, run.tactile_t, run.tactile, run.marker_t, run.markers,
                               f"seed {seed + i}")
         try:
-            fit = refine(record, identify_paper(record), forward=forward)
+            fit = refine(record, identify_paper(record, forward=forward), forward=forward)
         except (RecordError, np.linalg.LinAlgError) as exc:
             failures.append(str(exc))
             continue

@@ -27,6 +27,7 @@ from scipy.optimize import least_squares
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import lame_per_unit_modulus
+from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.models.elements import three_element
@@ -239,7 +240,7 @@ def _without_baseline(record: Record) -> tuple[Record, str]:
 
 def identify_paper(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
-    guard: float = 0.1, final_window: float | None = None,
+    guard: float = 0.1, final_window: float | None = None, forward: QuasiStaticFE | None = None,
 ) -> Estimate:
     """E, c1, c2 (and the Poisson ratio in 2D) by the paper's equations.
 
@@ -255,6 +256,9 @@ def identify_paper(
             every frame from 15 Voigt times after release on is averaged and the
             equations are solved again (the paper reads one final frame; averaging
             the recovered plateau divides the marker noise by the root of its frames).
+        forward: the converged forward model (``Setup.forward_model()``) for the force
+            the markers' displacement implies; ``None``: the paper's ``J u`` on the
+            marker grid (its own mesh: Tables II-IV).
 
     Raises:
         RecordError: a phase too short to fit, or data the model cannot explain.
@@ -270,13 +274,13 @@ def identify_paper(
     t_last = record.marker_t[-1]
     since = t_last - (MIN_FINAL_WINDOW if final_window is None else final_window)
     params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
-                                            final_displacement(record, since))
+                                            final_displacement(record, since), forward)
     if final_window is None:
         settled = profile.t_keep_end + SETTLED_VOIGT_TIMES * params["c1"] / params["E"]
         if settled < since:
             since = settled
             params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
-                                                    final_displacement(record, since))
+                                                    final_displacement(record, since), forward)
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
     follow = followed_stage_for(params, profile)
@@ -312,7 +316,7 @@ def _rate(t: np.ndarray) -> float:
 
 def _solve_equations(
     record: Record, curves: ForceCurves, profile: StageProfile, nodes: np.ndarray, method: str,
-    u_final: np.ndarray,
+    u_final: np.ndarray, forward: QuasiStaticFE | None = None,
 ) -> tuple[dict[str, float], float, tuple[int, ...]]:
     """Eq. 6 (+14), 10 or 17 over the nodes; -> params, RMS residual, nodes left out.
 
@@ -324,17 +328,21 @@ def _solve_equations(
     F_end = np.zeros_like(curves.keep_end) if method == "long_time" else curves.keep_end
     a = curves.pull_asymptote * t_P - F_end / curves.rate
     b = (curves.pull_end - curves.keep_start) * t_P
-    return solve_node_equations(record, nodes, u_final, a, b, F_end, curves.rate)
+    return solve_node_equations(record, nodes, u_final, a, b, F_end, curves.rate, forward)
 
 
 def solve_node_equations(
     record: Record, nodes: np.ndarray, u: np.ndarray, a: np.ndarray, b: np.ndarray, F_end: np.ndarray, r: float,
+    forward: QuasiStaticFE | None = None,
 ) -> tuple[dict[str, float], float, tuple[int, ...]]:
     """Solve ``a = c2 g`` and ``b = eta g + eta F_end / (r c2)`` over the bottom nodes by
     least squares (Section IV.B), ``g = [K_gamma u]`` at each node; -> params, RMS
     residual, and the nodes left out (0-based).
 
-    ``u`` (N, 2) is the displacement the equations refer to (u_keep or u_final). A node
+    ``u`` (N, 2) is the displacement the equations refer to (u_keep or u_final). With
+    a ``forward`` model, ``g`` is the force per unit modulus that ``u`` implies on its
+    converged mesh (``QuasiStaticFE.implied_force``) instead of the marker grid's
+    ``K_gamma u``, whose four elements across the face are too stiff. A node
     whose displacement term or force jumps have the wrong sign for a push (its signal
     is within the noise: an edge node on a shallow push) is left out; the rest solve
     the equations if they can (one node in 1D, two in 2D: three unknowns).
@@ -347,6 +355,8 @@ def solve_node_equations(
     plane = mesh.geometry == "plane_fe"
 
     def g_of(gamma: float) -> np.ndarray:
+        if forward is not None:
+            return forward.implied_force(u, gamma)[nodes][usable]
         if not plane:
             return g_mu
         lam, mu = lame_per_unit_modulus(gamma)
@@ -357,6 +367,7 @@ def solve_node_equations(
         g = g_of(x[2]) if plane else g_mu
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
 
+    usable = np.ones(nodes.size, bool)
     g0 = g_of(0.3)
     usable = (g0 > 0) & (a > 0) & (b > 0)
     if usable.sum() < (2 if plane else 1):
@@ -369,8 +380,9 @@ def solve_node_equations(
     g_lambda, g_mu, a, b, F_end, g0 = (v[usable] for v in (g_lambda, g_mu, a, b, F_end, g0))
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
     x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if plane else [])
-    lo = [-np.inf, -np.inf] + ([-0.99] if plane else [])
-    hi = [np.inf, np.inf] + ([0.4999] if plane else [])
+    g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
+    lo = [-np.inf, -np.inf] + ([g_lo] if plane else [])
+    hi = [np.inf, np.inf] + ([g_hi] if plane else [])
     sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
     c2, eta = float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
     if eta >= c2:
@@ -396,7 +408,8 @@ def _node_labels(nodes: np.ndarray, mesh_geometry: str, eqs: list[str]) -> tuple
     return tuple(eqs)
 
 
-def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1) -> Estimate:
+def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
+                  forward: QuasiStaticFE | None = None) -> Estimate:
     """What the pull phase alone gives (the run may still be going on).
 
     Eq. 6 per node: its jump at the start is ``eta J u_keep / t_P`` (eta = c1c2/(c1+c2))
@@ -413,7 +426,7 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
     u_keep = displacement_at_depth(record, profile.depth)
     t_P = profile.pull_time
     params, rms, dropped = solve_node_equations(record, nodes, u_keep, curve.asymptote * t_P, curve.start * t_P,
-                                       np.zeros_like(curve.start), curve.rate)
+                                                np.zeros_like(curve.start), curve.rate, forward)
     return Estimate(
         params=params, method="paper_pull",
         equations=_node_labels(nodes, record.mesh.geometry, ["eq.6 (pull only)", "eq.10 at t = 0"]),
@@ -424,7 +437,8 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
     )
 
 
-def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1) -> Estimate:
+def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
+                  forward: QuasiStaticFE | None = None) -> Estimate:
     """Pull and keep, before release: eq. 6, 7 and 10 with ``u_keep`` as the markers show it.
 
     The paper needs ``u_final`` because it reads the displacement after release; the
@@ -436,7 +450,7 @@ def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: flo
     nodes = np.arange(record.mesh.cols) if nodes is None else np.asarray(nodes)
     curves = fit_force_curves(record.force_t, record.force[:, nodes], profile, guard, record.source)
     u_keep = displacement_during(record, profile.t_pull_end + guard, profile.t_keep_end - guard)
-    params, rms, dropped = _solve_equations(record, curves, profile, nodes, "long_time", u_keep)
+    params, rms, dropped = _solve_equations(record, curves, profile, nodes, "long_time", u_keep, forward)
     relaxed = float(np.sum(np.abs(curves.keep_end)) / np.sum(np.abs(curves.keep_start)))
     return Estimate(
         params=params, method="paper_keep",

@@ -126,6 +126,11 @@ class PhaseIdentifier:
         self.mesh, self.config = mesh, config
         self.forward = forward or QuasiStaticFE(mesh)
 
+    def prepare(self) -> None:
+        """Build what the first closed form would otherwise wait for (the forward model's
+        implied-force table, ~0.4 s)."""
+        self.forward.implied_force(np.zeros(self.mesh.nodes.shape), 0.3)
+
     def closed_form(self, job: Job) -> tuple[Update | None, Estimate | RecordError]:
         """The paper's solution for the phase (eq. 6 after pull; 6, 7, 10 after keep; 6+14,
         7, 15-17 after release) as an update, and the estimate a fit starts from; where
@@ -138,7 +143,8 @@ class PhaseIdentifier:
         if rec is None:
             raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
         try:
-            est = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name](rec)
+            identify = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name]
+            est = identify(rec, forward=self.forward)
         except RecordError as exc:
             return None, exc
         return self._update(e, rec, est), est
@@ -433,6 +439,7 @@ def worker_init(identifier: PhaseIdentifier, niceness: int = 0) -> None:
     global _worker_identifier
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the node's to handle; the node stops us
     os.nice(niceness)
+    identifier.prepare()
     _worker_identifier = identifier
 
 
