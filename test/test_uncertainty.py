@@ -105,3 +105,21 @@ def test_closed_form_on_the_converged_mesh_is_within_half_a_percent(name, tolera
     assert abs(converged["gamma"]) < 5 * tolerance, converged
     grid = identify_paper(bag.record).relative_errors(truth)
     assert abs(grid["E"]) > 5.0 and abs(grid["gamma"]) > 20.0, grid
+
+
+def test_clock_offsets_between_the_streams_are_fitted_and_reported(clean_bag):
+    """The tactile stamps 20 ms late and the markers' 30 ms late against the stage's: the
+    fit estimates both offsets (std 1.8 ms and 0.7 ms here) and its parameters do not
+    move (unfitted, a 20 ms tactile lag moved c1 by -0.18 %, 3 std)."""
+    forward = Setup(clean_bag.params).forward_model()
+    record = clean_bag.record
+    late = replace(record, force_t=record.force_t + 0.020, marker_t=record.marker_t + 0.030)
+    base, shifted = (refine(r, identify_paper(r, forward=forward), forward=forward) for r in (record, late))
+    r0, r1 = base.residual_rms, shifted.residual_rms
+    # The offsets' 10 ms prior shrinks what the data say by (std / 10 ms)^2: 3 % here.
+    assert r1["tactile_delay_s"] - r0["tactile_delay_s"] == pytest.approx(0.020, abs=1e-3)
+    assert r1["marker_delay_s"] - r0["marker_delay_s"] == pytest.approx(0.030, abs=1e-3)
+    assert r1["tactile_delay_std_s"] < 0.005 and r1["marker_delay_std_s"] < 0.002
+    assert "tactile stamps are +" in shifted.message and "marker stamps are +" in shifted.message
+    for k, v in base.params.items():
+        assert shifted.params[k] == pytest.approx(v, rel=1e-4), k

@@ -25,7 +25,8 @@ def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dic
     noise = noise or Noise()
     case = table_iv_case()
     truth, clean = case.truth, case.record
-    problem = WholeRecordProblem(clean, Model(three_element(1.0, 1.0, 1.0)), noise.force_std(clean), noise.markers)
+    problem = WholeRecordProblem(clean, Model(three_element(1.0, 1.0, 1.0)), noise.force_std(clean), noise.markers,
+                                 delays=True)
     bound = cramer_rao_std(problem, truth)
     estimates: dict[str, list[list[float]]] = {"closed_form": [], "whole_record": []}
     failures = {"closed_form": 0, "whole_record": 0}

@@ -24,6 +24,18 @@ from rheo_ros.record import Record
 
 GAMMA_RANGE = (-1.0, 0.5)   # Poisson ratio of a stable isotropic plate in plane stress (open interval)
 SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
+# The streams' clock offsets against the stage's (s, positive: stamped late). Beyond
+# +-DELAY_LIMIT a shifted sample could cross a phase boundary (0.05 s are left out at
+# each): such an offset is reported as not determined. A 20 ms late tactile stream left unfitted moves c1 by -0.18 %
+# (3 std) on `clean_short_keep`, with residuals still at the noise.
+# A prior of DELAY_PRIOR_STD on each offset (clocks a robot's drivers keep within ~10 ms)
+# holds an offset the data barely see (a shallow push: tactile std 7 ms) from trading
+# against c1 out to the limit; where the data see it (1.8 ms) they decide.
+DELAYS = ("tactile_delay", "marker_delay")
+DELAY_LIMIT = 0.04
+DELAY_PRIOR_STD = 0.01
+MAX_PASSES = 4          # weighted fits, the weights from the previous pass's residuals
+WEIGHT_CHANGE = 0.02    # weights that moved less than this (relative) are settled
 # A mesh's error ~ h^p: the error left after halving h is 2^-p of it; the error at h is the
 # measured difference (h to h/2) times 1 / (1 - 2^-p). `rheo bench mesh` gives p ~ 1.3-1.4
 # (E: 0.079 % at refine 4, 0.031 % at 8, ~0.012 % at 16): 1 / (1 - 2^-1.3) = 1.68.
@@ -55,6 +67,8 @@ class WholeRecordProblem:
         forward: the forward model (default: the record's marker grid, nodal forces).
         live: (T, nodes) the force readings that count (default: all); readings in
             or near the tactile dead band are biased towards zero and left out.
+        delays: also fit the tactile and marker streams' clock offsets against the
+            stage's (``DELAYS``, s).
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -69,6 +83,7 @@ class WholeRecordProblem:
     guard: float = 0.05
     forward: QuasiStaticFE | None = None
     live: np.ndarray | None = None
+    delays: bool = False
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
@@ -79,7 +94,8 @@ class WholeRecordProblem:
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.plane = self.record.mesh.geometry == "plane_fe"
-        self.names = tuple(self.model.parameters) + (("gamma",) if self.plane else ())
+        self.names = (tuple(self.model.parameters) + (("gamma",) if self.plane else ())
+                      + (DELAYS if self.delays else ()))
         self._disp = self.record.markers - self.record.mesh.nodes[None]
 
     @property
@@ -92,9 +108,10 @@ class WholeRecordProblem:
         return int(self._disp.size)
 
     def predict(self, params: dict[str, float]) -> Prediction:
-        model = self.model.with_parameters({k: v for k, v in params.items() if k != "gamma"})
+        model = self.model.with_parameters({k: v for k, v in params.items() if k in self.model.parameters})
         return self.forward.predict(
-            model, params.get("gamma"), self.profile, self.record.force_t[self._use], self.record.marker_t
+            model, params.get("gamma"), self.profile, self.record.force_t[self._use] - params.get("tactile_delay", 0.0),
+            self.record.marker_t - params.get("marker_delay", 0.0),
         )
 
     def residuals(self, params: dict[str, float]) -> np.ndarray:
@@ -102,7 +119,8 @@ class WholeRecordProblem:
         rf = ((p.force - self._force) / self.force_std)[self._live]
         rm = p.displacement - self._disp
         rm = (rm - rm.mean(axis=0)) / self.marker_std
-        return np.concatenate([rf.ravel(), rm.ravel()])
+        prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
+        return np.concatenate([rf.ravel(), rm.ravel(), prior])
 
     def group_rms(self, params: dict[str, float]) -> tuple[np.ndarray, float]:
         """Unweighted RMS residual per node's force over its live readings (N; NaN for
@@ -144,45 +162,72 @@ def refine(
         record, model,
         force_std if force_std is not None else scale_f,
         marker_std if marker_std is not None else 1e-5,
-        forward=forward, live=noise.force_live,
+        forward=forward, live=noise.force_live, delays=True,
     )
     fixed = fixed or {}
     all_names = problem.names
     names = tuple(n for n in all_names if n not in fixed)
-    start = {n: initial.params.get(n, v) for n, v in {**model.parameters, "gamma": 0.3}.items() if n in names}
+    defaults = {**model.parameters, "gamma": 0.3, **dict.fromkeys(DELAYS, 0.0)}
+    start = {n: initial.params.get(n, v) for n, v in defaults.items() if n in names}
     p0 = _vector(names, start)
-    positive = np.array([n != "gamma" for n in names])
+    delay = np.array([n in DELAYS for n in names])
+    ratio = np.array([n == "gamma" for n in names])
+    positive = ~delay & ~ratio
     lo, hi = GAMMA_RANGE
 
     # Every parameter is searched unbounded (MINPACK's Levenberg-Marquardt) through a
     # transform that keeps it physical: positive ones as log(p / p0) (scale-free), the
-    # Poisson ratio as a logistic map onto (-1, 0.5). Clipped: a step on data that do
-    # not determine a parameter may ask for e^1000; such a parameter is reported with
-    # an infinite std below, never a number.
-    def unpack(x: np.ndarray) -> dict[str, float]:
+    # Poisson ratio as a logistic map onto (-1, 0.5), a clock offset in units of its
+    # prior's std (a saturating map would stall the search at its flat ends). Clipped: a step on data that do not determine a parameter may
+    # ask for e^1000; such a parameter is reported with an infinite std below, never a number.
+    def values_of(x: np.ndarray) -> np.ndarray:
         x = np.clip(x, -SEARCH_LIMIT, SEARCH_LIMIT)
-        values = np.where(positive, p0 * np.exp(np.where(positive, x, 0.0)), lo + (hi - lo) * expit(x))
-        free = dict(zip(names, values.tolist()))
+        return np.select([positive, ratio], [p0 * np.exp(np.where(positive, x, 0.0)), lo + (hi - lo) * expit(x)],
+                         DELAY_PRIOR_STD * x)
+
+    def unpack(x: np.ndarray) -> dict[str, float]:
+        free = dict(zip(names, values_of(x).tolist()))
         return {n: free[n] if n in free else float(fixed[n]) for n in all_names}
 
     g0 = np.clip((p0 - lo) / (hi - lo), 1e-6, 1 - 1e-6)
-    x0 = np.where(positive, 0.0, logit(g0))
+    x0 = np.select([positive, ratio], [0.0, logit(g0)], p0 / DELAY_PRIOR_STD)
 
     def solve(x0: np.ndarray, tol: float):
         return least_squares(lambda x: problem.residuals(unpack(x)), x0, method="lm", xtol=tol, ftol=tol)
 
+    # The clock offsets join once the rest is near its optimum: from a closed form 10 %
+    # off, a step along an offset could jump it across a phase boundary, where the model
+    # is discontinuous, and strand it there (seen: -300 ms, residuals 3.4 x the noise).
+    def solve_without_offsets(x0: np.ndarray, tol: float):
+        keep = ~delay
+        full = x0.copy()
+
+        def fun(xs: np.ndarray) -> np.ndarray:
+            full[keep] = xs
+            return problem.residuals(unpack(full))
+
+        part = least_squares(fun, x0[keep], method="lm", xtol=tol, ftol=tol)
+        full[keep] = part.x
+        return full
+
     estimate_noise = force_std is None or marker_std is None
-    # A first pass only sets the weights: a loose tolerance is enough.
-    sol = solve(x0, 1e-6 if estimate_noise else 1e-10)
+    # A first pass only sets the weights: a loose tolerance is enough. The weights are the
+    # residuals' RMS per group; a pass that moved them more than WEIGHT_CHANGE is repeated
+    # (a first pass stopped early leaves them too large, and the std with them).
+    sol = solve(solve_without_offsets(x0, 1e-6 if estimate_noise else 1e-10), 1e-6 if estimate_noise else 1e-10)
     passes = 1
-    if estimate_noise:
+    while estimate_noise and passes < MAX_PASSES:
         rf, rm = problem.group_rms(unpack(sol.x))
+        old = np.append(problem.force_std, problem.marker_std)
         if force_std is None:
-            problem.force_std = np.maximum(rf, 1e-9 * scale_f)
+            problem.force_std = np.maximum(np.nan_to_num(rf, nan=1.0), 1e-9 * scale_f)
         if marker_std is None:
             problem.marker_std = max(rm, 1e-12)
+        change = np.abs(np.append(problem.force_std, problem.marker_std) / old - 1).max()
+        if passes > 1 and change < WEIGHT_CHANGE:
+            break
         sol = solve(sol.x, 1e-10)
-        passes = 2
+        passes += 1
     params = unpack(sol.x)
     dof = max(sol.fun.size - len(names), 1)
     cost = float(sol.fun @ sol.fun)
@@ -190,12 +235,15 @@ def refine(
     # A parameter at the edge of its search, or one the residuals do not depend on, is
     # not determined by these data: infinite variance (its curvature would say ~0).
     column = np.linalg.norm(sol.jac, axis=0)
-    loose = (np.abs(sol.x) >= 0.99 * SEARCH_LIMIT) | (column <= 1e-12 * max(column.max(), 1e-300))
+    values = values_of(sol.x)
+    loose = ((np.abs(sol.x) >= 0.99 * SEARCH_LIMIT) | (column <= 1e-12 * max(column.max(), 1e-300))
+             | (delay & (np.abs(values) >= 0.95 * DELAY_LIMIT)))
     bounded = ~loose
     cov_x = np.zeros((len(names), len(names)))
     cov_x[np.ix_(bounded, bounded)] = np.linalg.pinv(sol.jac[:, bounded].T @ sol.jac[:, bounded]) * chi2
-    sig = expit(np.clip(sol.x, -SEARCH_LIMIT, SEARCH_LIMIT))
-    d = np.where(positive, _vector(names, params), (hi - lo) * sig * (1 - sig))  # d p / d x
+    xc = np.clip(sol.x, -SEARCH_LIMIT, SEARCH_LIMIT)
+    sig = expit(xc)
+    d = np.select([positive, ratio], [values, (hi - lo) * sig * (1 - sig)], DELAY_PRIOR_STD)  # dp / dx
     cov = np.zeros((len(all_names), len(all_names)))
     free = np.array([all_names.index(n) for n in names])
     cov[np.ix_(free, free)] = cov_x * np.outer(d, d)
@@ -226,18 +274,29 @@ def refine(
             f"{v:.3g} x the sensor noise on {k}" for k, v in sorted(worst.items(), key=lambda kv: -kv[1]))
             + " (expected 1): an effect the model lacks or a wrong set-up (boundary, geometry); "
             "the std assume white residuals and understate the error")
+    std = np.sqrt(np.diag(cov))
+    clocks: dict[str, float] = {}
+    for n in DELAYS:
+        if n in names:
+            i = all_names.index(n)
+            clocks |= {f"{n}_s": params[n], f"{n}_std_s": float(std[i])}
+            if np.isfinite(std[i]) and abs(params[n]) > max(3 * std[i], 1e-3):
+                stream = n.split("_")[0]
+                note += (f"; the {stream} stamps are {1e3 * params[n]:+.3g} +- {1e3 * std[i]:.2g} ms off the "
+                         "stage's (fitted)")
+    physical = [i for i, n in enumerate(all_names) if n not in DELAYS]
     return Estimate(
-        params=params,
+        params={all_names[i]: params[all_names[i]] for i in physical},
         method="whole_record",
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
-        covariance=cov,
+        covariance=cov[np.ix_(physical, physical)],
         residual_rms={"force": float(np.sqrt(np.nanmean(rf**2))), "markers": rm, "reduced_chi2": chi2,
                       "cost": cost, "marker_std": float(problem.marker_std),
                       **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
                           problem.force_std, (record.mesh.cols,)))}, **systematic,
                       **{f"noise_P{i + 1}": float(v) for i, v in enumerate(noise.force_std)},
                       "noise_markers": noise.marker_std,
-                      **{f"fit_to_noise_{k}": v for k, v in fit_to_noise.items()}},
+                      **{f"fit_to_noise_{k}": v for k, v in fit_to_noise.items()}, **clocks},
         message=f"{passes} pass(es); {sol.message}{note}",
     )
 
@@ -245,19 +304,22 @@ def refine(
 def cramer_rao_std(problem: WholeRecordProblem, params: dict[str, float]) -> dict[str, float]:
     """Cramer-Rao lower bound on the standard deviation of each parameter.
 
-    Fisher information ``J^T J`` of the weighted residuals (unit-variance noise) at
-    ``params``; the Jacobian by scipy's adaptive finite differences.
+    Fisher information ``J^T J`` of the weighted residuals (unit-variance noise, and the
+    clock offsets' prior when the problem fits them) at ``params`` (offsets not given:
+    0); the Jacobian by scipy's adaptive finite differences, in steps relative to each
+    parameter and in units of the prior's std for the offsets.
     """
     names = problem.names
-    p = _vector(names, params)
+    p = np.array([params.get(n, 0.0) if n in DELAYS else params[n] for n in names], dtype=float)
+    scale = np.array([DELAY_PRIOR_STD if n in DELAYS else abs(v) for n, v in zip(names, p)])
 
     def f(x: np.ndarray) -> np.ndarray:
         # scipy.differentiate evaluates many points at once along the trailing axes.
         flat = x.reshape(len(names), -1)
-        cols = [problem.residuals(dict(zip(names, (p * (1 + flat[:, j])).tolist())))
+        cols = [problem.residuals(dict(zip(names, (p + scale * flat[:, j]).tolist())))
                 for j in range(flat.shape[1])]
         return np.stack(cols, axis=-1).reshape(-1, *x.shape[1:])
 
     J = jacobian(f, np.zeros(len(names)), initial_step=1e-4, maxiter=4).df
-    cov = np.linalg.inv(J.T @ J) * np.outer(p, p)
+    cov = np.linalg.inv(J.T @ J) * np.outer(scale, scale)
     return dict(zip(names, np.sqrt(np.diag(cov)).tolist()))
