@@ -233,6 +233,20 @@ def zero_force_baseline(record: Record) -> tuple[np.ndarray, str]:
                       "return (a drifting or offset sensor: rheo analyze diagnoses it)")
 
 
+# A relaxation rate known no better than this (relative std) leaves every parameter of
+# the equations undetermined: c2 = asymptote / (rate ...) and E = rate (c1 + c2).
+RATE_REL_STD_LIMIT = 0.3
+
+
+def rate_note(rate: float, rate_rel_std: float) -> str:
+    """The warning for a relaxation rate the force curves do not pin down (empty if they do)."""
+    if rate_rel_std <= RATE_REL_STD_LIMIT:
+        return ""
+    return (f"; WARNING: the force curves pin the relaxation rate only to +-{100 * rate_rel_std:.0f} %: "
+            f"E, c1, c2 and gamma from these equations are not determined (a keep of at least "
+            f"{2.0 / rate:.3g} s, 2 relaxation times, determines them; the whole-record fit may)")
+
+
 def _without_baseline(record: Record) -> tuple[Record, str]:
     baseline, note = zero_force_baseline(record)
     return (replace(record, force=record.force - baseline), note) if note else (record, "")
@@ -297,7 +311,8 @@ def identify_paper(
         residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std,
                       "release_follow_s": follow},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
-                 f"final displacements averaged over {t_last - since:.3g} s{dropped_note(dropped)}{slow}{baseline}"),
+                 f"final displacements averaged over {t_last - since:.3g} s{dropped_note(dropped)}{slow}{baseline}"
+                 f"{rate_note(curves.rate, curves.rate_rel_std)}"),
     )
 
 
@@ -433,7 +448,8 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
         residual_rms={"force_fit": curve.residual_rms, "equations": rms, "rate_rel_std": curve.rate_rel_std,
                       "rate_x_pull_time": curve.rate * t_P},
         message=f"relaxation rate {curve.rate:.4g} 1/s +- {100 * curve.rate_rel_std:.3g} % from the pull's curvature "
-                f"(rate x t_P = {curve.rate * t_P:.3g}){dropped_note(dropped)}{baseline}",
+                f"(rate x t_P = {curve.rate * t_P:.3g}){dropped_note(dropped)}{baseline}"
+                f"{rate_note(curve.rate, curve.rate_rel_std)}",
     )
 
 
@@ -457,7 +473,7 @@ def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: flo
         equations=_node_labels(nodes, record.mesh.geometry, ["eq.6", "eq.7", "eq.10 with u_keep"]),
         residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; u_keep from the keep's marker frames"
-                 f"{dropped_note(dropped)}{baseline}"),
+                 f"{dropped_note(dropped)}{baseline}{rate_note(curves.rate, curves.rate_rel_std)}"),
     )
 
 

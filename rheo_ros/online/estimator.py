@@ -197,7 +197,7 @@ class PhaseIdentifier:
         if cov is None:
             rel = est.residual_rms.get("rate_rel_std", 0.0)
             if not rel <= self.config.rate_std:
-                for n in ("E", "c1", "c2"):
+                for n in names:   # every parameter of the equations rests on the rate
                     undetermined[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
                                        f"rate x time seen = {rate * seen:.2g}); {longer}")
         else:
