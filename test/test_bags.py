@@ -100,11 +100,11 @@ def test_uniaxial_simulator_output_matches_exact_model_response():
     from rheo_ros.simulator import simulate_run
 
     run = simulate_run(setup, 0)
-    force = setup.tactile.nodal_forces(run.tactile)[:, 0]
+    force = setup.tactile.nodal_forces(run.tactile).sum(axis=1)   # unit block: total force = stress
     exact = respond(setup.model().rheology(), setup.profile.program(), run.tactile_t)
     edges = [p.t_start for p in setup.profile.phases]
     ok = np.abs(run.tactile_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.05
-    # float32 pressures (6e-8 relative) and the bar's inertia (density 1e-3): 1e-5 of the peak.
+    # float32 pressures (6e-8 relative) and the block's inertia (density 1e-3): 1e-5 of the peak.
     np.testing.assert_allclose(force[ok], exact.stress[ok], atol=1e-5 * exact.stress.max())
     top = -(run.markers[:, -1, 1] - setup.mesh.nodes[-1, 1])
     exact_m = respond(setup.model().rheology(), setup.profile.program(), run.marker_t).strain

@@ -63,7 +63,8 @@ def test_a_segment_without_a_column_is_refused_even_with_enough_columns(monkeypa
 
 
 @pytest.mark.parametrize("given", [{"tactile.cols": 5}, {"stage.depth": 0.079},
-                                   {"geometry": "uniaxial", "markers.cols": 1, "tactile.cols": 1}])
+                                   {"geometry": "uniaxial", "markers.cols": 2, "tactile.cols": 2},
+                                   {"geometry": "uniaxial", "boundary.bottom": "frictionless"}])
 def test_edge_setups_that_can_work_are_accepted(given):
     check_params(given, "p.yaml")
 

@@ -44,7 +44,7 @@ class ElasticShape:
     bottom_force: np.ndarray
 
 
-def elastic_shape(mesh: Mesh, gamma: float | None) -> tuple[np.ndarray, np.ndarray]:
+def elastic_shape(mesh: Mesh, gamma: float) -> tuple[np.ndarray, np.ndarray]:
     """Static elastic solution of ``mesh`` for a unit stage depth and unit E, under the
     mesh's boundary conditions: the dof displacements (m/m) and the bottom nodes' y
     reactions (N/(Pa m), positive pressing the sensor)."""
@@ -85,7 +85,7 @@ class QuasiStaticFE:
         self._finer: QuasiStaticFE | None = None
         self._segments = None if segment_edges is None else self.fe_mesh.segment_integrals(segment_edges)
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
-        self._shapes: dict[float | None, ElasticShape] = {}
+        self._shapes: dict[float, ElasticShape] = {}
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -99,8 +99,8 @@ class QuasiStaticFE:
             self._finer = QuasiStaticFE(self.mesh, 2 * self.refine, edges)
         return self._finer
 
-    def shape(self, gamma: float | None) -> ElasticShape:
-        key = None if self.mesh.geometry == "uniaxial" else float(gamma)
+    def shape(self, gamma: float) -> ElasticShape:
+        key = float(gamma)
         if key not in self._shapes:
             if len(self._shapes) >= self.SHAPES_KEPT:
                 del self._shapes[next(iter(self._shapes))]
@@ -110,7 +110,7 @@ class QuasiStaticFE:
         return self._shapes[key]
 
     def predict(
-        self, model: Model, gamma: float | None, profile: StageProfile,
+        self, model: Model, gamma: float, profile: StageProfile,
         force_t: np.ndarray, marker_t: np.ndarray,
     ) -> Prediction:
         shape = self.shape(gamma)

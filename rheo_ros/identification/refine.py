@@ -14,6 +14,7 @@ from scipy.optimize import least_squares
 from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.mesh import GAMMA_RANGE
 from rheo_ros.fe.quasistatic import Prediction, QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.models.effects import Model
@@ -21,7 +22,6 @@ from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
 
 
-GAMMA_RANGE = (-1.0, 0.5)   # Poisson ratio of a stable isotropic plate in plane stress (open interval)
 SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
 # A mesh's error ~ h^p: the error left after halving h is 2^-p of it; the error at h is the
 # measured difference (h to h/2) times 1 / (1 - 2^-p). `rheo bench mesh` gives p ~ 1.3-1.4
@@ -62,14 +62,13 @@ class WholeRecordProblem:
         self._use = np.abs(t[:, None] - edges[None]).min(axis=1) >= self.guard
         self._force = self.record.force[self._use]
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
-        self.plane = self.record.mesh.geometry == "plane_fe"
-        self.names = tuple(self.model.parameters) + (("gamma",) if self.plane else ())
+        self.names = tuple(self.model.parameters) + ("gamma",)
         self._disp = self.record.markers - self.record.mesh.nodes[None]
 
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k != "gamma"})
         return self.forward.predict(
-            model, params.get("gamma"), self.profile, self.record.force_t[self._use], self.record.marker_t
+            model, params["gamma"], self.profile, self.record.force_t[self._use], self.record.marker_t
         )
 
     def residuals(self, params: dict[str, float]) -> np.ndarray:
