@@ -237,7 +237,7 @@ def identify_paper(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
     guard: float = 0.1, final_window: float | None = None,
 ) -> Estimate:
-    """E, c1, c2 (and the Poisson ratio in 2D) by the paper's equations.
+    """E, c1, c2 and the Poisson ratio by the paper's equations.
 
     Args:
         record: the run; its phases are read off the stage.
@@ -344,7 +344,7 @@ def solve_node_equations(
         return lam * g_lambda + mu * g_mu
 
     def unpack(x: np.ndarray) -> tuple[float, float, float]:
-        """c2, eta, gamma from the search vector (gamma searched only in 2D)."""
+        """c2, eta, gamma from the search vector (gamma searched only on plane_fe)."""
         return np.exp(x[0]), np.exp(x[1]), x[2] if block_gamma is None else block_gamma
 
     def residuals(x: np.ndarray) -> np.ndarray:
