@@ -55,9 +55,12 @@ DEFAULTS: dict[str, Any] = {
 
 
 PARAM_HELP: dict[str, str] = {
-    "geometry": "uniaxial (1D bar, paper Sec. II-III) or plane_fe (2D plane-stress FE of the face, Sec. IV)",
-    "boundary.bottom": "plane_fe: bonded (no slip on the sensor) or frictionless",
-    "boundary.top": "plane_fe: bonded (no slip against the stage) or frictionless",
+    "geometry": "uniaxial (homogeneous block in uniaxial stress, paper Sec. II-III: both faces frictionless, gamma "
+                "from the markers' lateral motion) or plane_fe (2D plane-stress FE of the face, Sec. IV)",
+    "boundary.bottom": "plane_fe: bonded (no slip on the sensor) or frictionless; uniaxial: frictionless only "
+                       "(filled in when not set)",
+    "boundary.top": "plane_fe: bonded (no slip against the stage) or frictionless; uniaxial: frictionless only "
+                    "(filled in when not set)",
     "mesh.refine": "identification's FE mesh: each marker-grid element split refine x refine (1: the paper's "
                    "mesh on the markers, nodal forces; more: segment forces integrated over their extent)",
     "simulator.refine": "simulator's FE mesh, as mesh.refine (finer than the identification's: its data are not "
@@ -159,6 +162,10 @@ def check_params(given: Mapping[str, Any], source: str = "<parameters>") -> dict
     if unknown:
         raise ParamsError(f"{source}: unknown parameter(s): {', '.join(unknown)}")
     params = {**DEFAULTS, **given}
+    if params["geometry"] == "uniaxial":
+        # The block's faces are frictionless by definition: that is its default, and
+        # a bonded face given for it is refused when the mesh is built (Setup.check).
+        params.update({k: "frictionless" for k in ("boundary.bottom", "boundary.top") if k not in given})
     for key, default in DEFAULTS.items():
         value = params[key]
         if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
@@ -221,17 +228,15 @@ class Setup:
         # Counted before anything is built: the models' own errors cannot name the
         # parameter, and a zero cell count only fails later, dividing by it.
         least = {"tactile.rows": (1, "cells"), "tactile.cols": (1, "cells"), "markers.rows": (2, "markers"),
-                 "mesh.refine": (1, "splits per element"), "simulator.refine": (1, "splits per element")}
-        if p["geometry"] == "plane_fe":  # uniaxial has one column of markers whatever markers.cols says
-            least["markers.cols"] = (2, "markers")
+                 "markers.cols": (2, "markers"), "mesh.refine": (1, "splits per element"),
+                 "simulator.refine": (1, "splits per element")}
         for key, (n, what) in least.items():
             if p[key] < n:
                 raise ParamsError(f"{source}: {key}: {p[key]} {what}; must be at least {n}")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
             self.mesh.refined(p["mesh.refine"])
-            if self.gamma is not None:
-                self.mesh.stiffness(self.gamma)
+            self.mesh.stiffness(self.gamma)
         except (ValueError, KeyError) as exc:
             raise ParamsError(f"{source}: {exc}") from None
         if p["stage.depth"] >= p["specimen.height"]:
@@ -334,5 +339,5 @@ class Setup:
         return EstimatorConfig(**{f.name: self.params[f"estimator.{f.name}"] for f in fields(EstimatorConfig)})
 
     @property
-    def gamma(self) -> float | None:
-        return self.params["material.gamma"] if self.params["geometry"] == "plane_fe" else None
+    def gamma(self) -> float:
+        return self.params["material.gamma"]

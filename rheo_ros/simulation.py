@@ -23,7 +23,7 @@ class Rates:
 
 
 def simulate_record(
-    mesh: Mesh, model: Model, gamma: float | None, profile: StageProfile,
+    mesh: Mesh, model: Model, gamma: float, profile: StageProfile,
     rates: Rates = Rates(), density: float = 1.5e3, omega: float = 1.0e3, source: str = "simulation",
     refine: int = 1, segment_edges: np.ndarray | None = None,
 ) -> Record:

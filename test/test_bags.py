@@ -22,7 +22,7 @@ TOPICS = (STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC)
 
 
 def test_every_reference_bag_is_committed_and_small():
-    assert len(NAMES) == 8
+    assert len(NAMES) == 9
     for name in NAMES:
         size = sum(f.stat().st_size for f in (BAGS / name).iterdir())
         assert size < 5e6, (name, size)
@@ -100,11 +100,11 @@ def test_uniaxial_simulator_output_matches_exact_model_response():
     from rheo_ros.simulator import simulate_run
 
     run = simulate_run(setup, 0)
-    force = setup.tactile.nodal_forces(run.tactile)[:, 0]
+    force = setup.tactile.nodal_forces(run.tactile).sum(axis=1)   # unit block: total force = stress
     exact = respond(setup.model().rheology(), setup.profile.program(), run.tactile_t)
     edges = [p.t_start for p in setup.profile.phases]
     ok = np.abs(run.tactile_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.05
-    # float32 pressures (6e-8 relative) and the bar's inertia (density 1e-3): 1e-5 of the peak.
+    # float32 pressures (6e-8 relative) and the block's inertia (density 1e-3): 1e-5 of the peak.
     np.testing.assert_allclose(force[ok], exact.stress[ok], atol=1e-5 * exact.stress.max())
     top = -(run.markers[:, -1, 1] - setup.mesh.nodes[-1, 1])
     exact_m = respond(setup.model().rheology(), setup.profile.program(), run.marker_t).strain
@@ -157,6 +157,22 @@ def test_refinement_through_the_sensor_path_recovers_the_material(name):
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
         assert abs(est.params[k] - v) < 2e-3 * v, k
+
+
+def test_uniaxial_block_bag_is_identified_within_four_std():
+    """The uniaxial block (frictionless faces, gamma 0.3) through the sensor path, noisy
+    and dead-banded: gamma from the markers' lateral motion, the forces blind to it.
+    Measured: closed form E +1.3 %, gamma -4.1 % (two final seconds of noisy markers);
+    fit within 0.041 % (c1 -3.3 std, the other parameters within 0.7 std)."""
+    from rheo_ros.identification.refine import refine
+
+    bag = read_bag(BAGS / "uniaxial_block")
+    assert bag.params["geometry"] == "uniaxial" and bag.record.mesh.boundary.bottom == "frictionless"
+    rec = bag.record
+    est = refine(rec, identify_paper(rec), forward=Setup(bag.params).forward_model())
+    truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
+    for k, v in truth.items():
+        assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
 
 
 def test_regenerated_bag_holds_under_another_blas_kernel(tmp_path):

@@ -26,25 +26,33 @@ def away_from(t, edges, gap):
     [three_element(**TABLE_I), Model(three_element(**TABLE_I), (RelaxationBranch(1.0, 2.0),)).rheology()],
 )
 def test_uniaxial_fe_matches_exact_model_response(element):
-    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5)
+    """The uniaxial block (5 x 5 nodes, frictionless faces) in uniform uniaxial stress:
+    the paper's 1D model in every column, and the lateral strain -gamma times the axial."""
+    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5, cols=5)
+    gamma = 0.3
     profile = StageProfile.from_times(0.5, 20.0, 20.0, start_delay=1.0, release_time=40.0)
     t = sample_times(profile.t_end, 50.0)
-    fe = DynamicFE(mesh, element, density=1e-3, omega=1e3).simulate(profile, t)
+    fe = DynamicFE(mesh, element, gamma, density=1e-3, omega=1e3).simulate(profile, t)
     exact = respond(element, profile.program(), t)
     ok = away_from(t, [p.t_start for p in profile.phases], 0.05)
     peak = np.abs(exact.stress).max()
-    # Force: unit bar, so nodal force = stress. Tolerance 1e-5 of the peak: the bar's
+    # Force: unit block, so total force = stress; each node carries its share of the
+    # face (1/8 at the edges, 1/4 inside). Tolerance 1e-5 of the peak: the block's
     # inertia (density 1e-3: m*a ~ 4e-6 of the peak while recovering) and the
     # omega-stabilised constraint.
-    np.testing.assert_allclose(fe.bottom_force[ok, 0], exact.stress[ok], atol=1e-5 * peak)
-    # Top node follows the stage, then recovers freely with the model's strain
-    # (1e-5 of the depth: the nodes' inertia while recovering).
-    np.testing.assert_allclose(-fe.displacement[ok, -1, 1], exact.strain[ok], atol=1e-5 * 0.5)
+    share = np.array([1, 2, 2, 2, 1]) / 8
+    np.testing.assert_allclose(fe.bottom_force[ok], np.outer(exact.stress[ok], share), atol=1e-5 * peak)
+    # Every marker moves by the uniform strain field: y sinks with the model's strain,
+    # x spreads about the held centre (1e-5 of the depth: inertia while recovering).
+    x, y = mesh.nodes[:, 0], mesh.nodes[:, 1]
+    strain = exact.strain[ok, None]
+    np.testing.assert_allclose(fe.displacement[ok, :, 1], -strain * y, atol=1e-5 * 0.5)
+    np.testing.assert_allclose(fe.displacement[ok, :, 0], gamma * strain * (x - 0.5), atol=1e-5 * 0.5)
 
 
 def test_long_time_case_relaxes_fully_and_keeps_its_deformation(long_case):
     rec, prof = long_case.record, long_case.profile
-    f = rec.force[:, 0]
+    f = rec.force.sum(axis=1)                                 # unit block: total force = stress
     end_keep = rec.force_t < prof.t_keep_end
     assert f[end_keep][-1] < 1e-3 * f.max()                   # Fig. 3(a): force relaxed to ~0
     u_top = -rec.marker_displacement[:, -1, 1]
@@ -53,18 +61,18 @@ def test_long_time_case_relaxes_fully_and_keeps_its_deformation(long_case):
 
 def test_short_time_case_has_residual_force_and_recovery(short_case):
     rec, prof = short_case.record, short_case.profile
-    f = rec.force[:, 0]
+    f = rec.force.sum(axis=1)
     keep_last = f[rec.force_t < prof.t_keep_end][-1]
     assert keep_last > 0.3 * f.max()                          # Fig. 3(b): residual force
     u_top = -rec.marker_displacement[:, -1, 1]
-    # Recovered displacement (eq. 12): (c1+c2)/(E c2) * F_K(end) on the unit bar.
+    # Recovered displacement (eq. 12): (c1+c2)/(E c2) * F_K(end) on the unit block.
     recovered = 0.5 - u_top[-1]
     assert recovered == pytest.approx((8 + 40) / (2 * 40) * keep_last, rel=2e-3)
 
 
 def test_force_jump_at_end_of_pull_is_eq10(short_case):
     rec, prof = short_case.record, short_case.profile
-    t, f = rec.force_t, rec.force[:, 0]
+    t, f = rec.force_t, rec.force.sum(axis=1)
     before = f[np.searchsorted(t, prof.t_pull_end) - 1]
     after = f[np.searchsorted(t, prof.t_pull_end) + 1]
     eta_rate = 8 * 40 / 48 * 0.5 / 20
@@ -92,11 +100,13 @@ def test_plane_stress_lame_constants():
 
 
 @pytest.mark.parametrize("refine", [1, 3])
-def test_frictionless_block_is_the_analytic_uniaxial_solution(refine):
-    """Both faces frictionless: uniform uniaxial stress (plane stress), exact on any Q4
-    mesh. Total force E A d / H, lateral expansion gamma d W / H, each tactile segment
-    the uniform pressure times its width, markers read by interpolation."""
-    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("frictionless", "frictionless"))
+@pytest.mark.parametrize("geometry", ["uniaxial", "plane_fe"])
+def test_frictionless_block_is_the_analytic_uniaxial_solution(geometry, refine):
+    """Both faces frictionless (geometry uniaxial, or plane_fe with that choice): uniform
+    uniaxial stress (plane stress), exact on any Q4 mesh. Total force E A d / H, lateral
+    expansion gamma d W / H, each tactile segment the uniform pressure times its width,
+    markers read by interpolation."""
+    mesh = Mesh.build(geometry, 0.08, 0.08, 0.0125, 5, 5, Boundary("frictionless", "frictionless"))
     gamma, depth = 0.3, 0.001
     edges = np.array([0.0, 0.01, 0.03, 0.05, 0.07, 0.08])
     shape = QuasiStaticFE(mesh, refine, edges).shape(gamma)

@@ -17,6 +17,10 @@ REPO = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
 
 
+UNIAXIAL_BONDED = ("with geometry uniaxial, the block in uniaxial stress with both faces frictionless; "
+                   "use geometry plane_fe for a bonded face")
+
+
 def params_text(body: str) -> str:
     return "/**:\n  ros__parameters:\n" + "".join(f"    {line}\n" for line in body.splitlines())
 
@@ -42,9 +46,14 @@ def params_file(tmp_path: Path, body: str) -> Path:
         ("markers: {rows: 1}", "p.yaml: markers.rows: 1 markers; must be at least 2"),
         ("markers: {cols: 1}", "p.yaml: markers.cols: 1 markers; must be at least 2"),
         ("stage: {dept: 0.01}", "p.yaml: unknown parameter(s): stage.dept"),
+        ("geometry: uniaxial\nboundary: {bottom: bonded}", f"p.yaml: boundary.bottom: 'bonded' {UNIAXIAL_BONDED}"),
+        ("geometry: uniaxial\nboundary: {top: bonded, bottom: frictionless}",
+         f"p.yaml: boundary.top: 'bonded' {UNIAXIAL_BONDED}"),
+        ("geometry: uniaxial\nmarkers: {cols: 1}\ntactile: {cols: 1}", "p.yaml: markers.cols: 1 markers; must be at least 2"),
     ],
     ids=["tactile-rows-0", "tactile-cols-0", "fewer-columns-than-segments", "fewer-columns-than-markers-cols",
-         "depth-at-height", "one-marker-row", "one-marker-column", "unknown-name"],
+         "depth-at-height", "one-marker-row", "one-marker-column", "unknown-name", "uniaxial-bonded-bottom",
+         "uniaxial-bonded-top", "uniaxial-one-marker-column"],
 )
 def test_bad_setup_is_refused_in_one_line_naming_the_field(body, message):
     with pytest.raises(ParamsError) as err:
@@ -63,7 +72,8 @@ def test_a_segment_without_a_column_is_refused_even_with_enough_columns(monkeypa
 
 
 @pytest.mark.parametrize("given", [{"tactile.cols": 5}, {"stage.depth": 0.079},
-                                   {"geometry": "uniaxial", "markers.cols": 1, "tactile.cols": 1}])
+                                   {"geometry": "uniaxial", "markers.cols": 2, "tactile.cols": 2},
+                                   {"geometry": "uniaxial", "boundary.bottom": "frictionless"}])
 def test_edge_setups_that_can_work_are_accepted(given):
     check_params(given, "p.yaml")
 
@@ -90,8 +100,10 @@ def node_env() -> dict:
         *[(node, "stage: {dept: 0.01}\nuse_sim_time: true\neffects.adhesion.fraction: 0.2",
            "unknown parameter(s): stage.dept") for node in ("segmenter", "stage", "simulator", "estimator")],
         ("simulator", "tactile: {rows: 0}", "tactile.rows: 0 cells; must be at least 1"),
+        ("estimator", "geometry: uniaxial\nboundary: {bottom: bonded}", f"boundary.bottom: 'bonded' {UNIAXIAL_BONDED}"),
     ],
-    ids=["unknown-segmenter", "unknown-stage", "unknown-simulator", "unknown-estimator", "simulator-tactile-rows-0"],
+    ids=["unknown-segmenter", "unknown-stage", "unknown-simulator", "unknown-estimator", "simulator-tactile-rows-0",
+         "estimator-uniaxial-bonded"],
 )
 def test_node_refuses_bad_parameters_at_start_in_one_line(tmp_path, node, body, message):
     """ROS's own use_sim_time and the open effects.* namespace pass; only the bad name
@@ -102,3 +114,34 @@ def test_node_refuses_bad_parameters_at_start_in_one_line(tmp_path, node, body, 
     assert run.returncode == 2, run.stderr
     assert run.stderr == f"{node}: error: node {node}: {message}\n"
     assert "ready" not in run.stdout
+
+
+def test_uniaxial_faces_are_frictionless_unless_set():
+    """check_params fills the uniaxial block's faces in (the defaults say bonded, for plane_fe)."""
+    params = check_params({"geometry": "uniaxial"}, "p.yaml")
+    assert params["boundary.bottom"] == params["boundary.top"] == "frictionless"
+    assert check_params({}, "p.yaml")["boundary.bottom"] == "bonded"
+
+
+def test_a_node_checks_only_the_parameters_set_and_serves_what_it_runs_with():
+    """A node given geometry uniaxial alone runs with frictionless faces (the table's
+    bonded default, declared before the check, would be refused), and its parameter
+    services serve those values: what `rheo record` stores in a bag."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from rheo_ros.nodes.common import NODE_OPTIONS, declare_all
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = Node("uniaxial_check", context=context, parameter_overrides=[Parameter("geometry", value="uniaxial")],
+                    **NODE_OPTIONS)
+        params = declare_all(node)
+        assert params["boundary.bottom"] == params["boundary.top"] == "frictionless"
+        assert node.get_parameter("boundary.top").value == "frictionless"
+        assert node.get_parameter("markers.cols").value == 5
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

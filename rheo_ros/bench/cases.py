@@ -11,10 +11,12 @@ from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
 from rheo_ros.simulation import simulate_record
 
-# Table I: E, c1, c2 and d in the paper's units; a unit bar (1 x 1 x 1) makes the
-# nodal force equal the stress and J u the strain, as in the paper's Sections II-III.
+# Table I: E, c1, c2 and d in the paper's units; a unit block (1 x 1 x 1) makes the
+# total force equal the stress and the top's sinking the strain, as in the paper's
+# Sections II-III. The paper's 1D model has no Poisson effect: gamma 0.
 TABLE_I = {"E": 2.0, "c1": 8.0, "c2": 40.0}
 TABLE_I_DEPTH = 0.5
+TABLE_I_GAMMA = 0.0
 TABLE_IV = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
 # Tables II and III: the paper's identified values and errors (%).
 TABLE_II = {"E": (2.0006, 0.03), "c1": (8.0107, 0.134), "c2": (40.005, 0.0125)}
@@ -34,15 +36,16 @@ class Case:
 
 
 def table_i_case(name: str, phase_time: float) -> Case:
-    """Table I long-time (200 s) or short-time (20 s) case on the 1D bar.
+    """Table I long-time (200 s) or short-time (20 s) case on the uniaxial block (the
+    paper's homogeneous 1D model), 5 x 5 markers, gamma 0.
 
-    The bar's density is 1e-3 kg/m^3: the paper gives no masses, and the
-    identification assumes a quasi-static bar.
+    The block's density is 1e-3 kg/m^3: the paper gives no masses, and the
+    identification assumes a quasi-static block.
     """
-    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5)
+    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5, cols=5)
     profile = StageProfile.from_times(TABLE_I_DEPTH, phase_time, phase_time, start_delay=1.0, release_time=100.0)
     model = Model(three_element(**TABLE_I))
-    record = simulate_record(mesh, model, None, profile, density=1e-3, source=f"table_I_{name}")
+    record = simulate_record(mesh, model, TABLE_I_GAMMA, profile, density=1e-3, source=f"table_I_{name}")
     paper, method = (TABLE_II, "long_time") if name == "long" else (TABLE_III, "short_time")
     return Case(f"Table I {name}-time (1D)", dict(TABLE_I), paper, method, record, profile, 1e-3)
 

@@ -31,7 +31,7 @@ def _keep_end_deformation_error(case: Case, est: Estimate) -> float:
     rec = case.record
     i = int(np.searchsorted(rec.marker_t, case.profile.t_keep_end) - 1)
     p = est.params
-    fe = DynamicFE(rec.mesh, three_element(p["E"], p["c1"], p["c2"]), p.get("gamma"), density=case.density)
+    fe = DynamicFE(rec.mesh, three_element(p["E"], p["c1"], p["c2"]), p["gamma"], density=case.density)
     sim = fe.simulate(case.profile, rec.marker_t[: i + 1])
     simulated = rec.mesh.nodes + sim.displacement[-1]
     return deformation_error(simulated, rec.markers[i], rec.mesh.width, rec.mesh.height)

@@ -1,4 +1,5 @@
-"""The FE dynamic model of the paper: eq. 1 (1D) and its 2D extension, eq. 18-21.
+"""The FE dynamic model of the paper: eq. 1 in its 2D extension, eq. 18-21 (on the
+uniaxial block, whose stress is uniform, every column of nodes is eq. 1's bar).
 
 Nodal masses ``M``, constraints held by Lagrange multipliers with the paper's
 stabilisation (``C'' + 2 omega C' + omega^2 C = 0`` for each constraint ``C = 0``) and
@@ -57,7 +58,7 @@ class Condensed:
         bottom_y, top_y: condensed dofs of the bottom and top rows' y.
         segments: (segments, bottom nodes) each tactile segment's force from the
             bottom reactions (identity without segment edges).
-        marker_dofs: condensed dofs of each marker's x and y (-1: none, the 1D bar's x).
+        marker_dofs: condensed dofs of each marker's x and y.
     """
 
     fine: Mesh
@@ -70,16 +71,13 @@ class Condensed:
     marker_dofs: np.ndarray
 
     @classmethod
-    def of(cls, mesh: Mesh, gamma: float | None, density: float, refine: int = 1,
+    def of(cls, mesh: Mesh, gamma: float, density: float, refine: int = 1,
            segment_edges: np.ndarray | None = None) -> Condensed:
         fine = mesh.refined(refine)
         if segment_edges is None and refine != 1:
             raise ValueError("a refined mesh needs the tactile segments' edges")
-        d = fine.dofs_per_node
         # Marker nodes in the fine mesh: the marker grid sits on every refine-th node.
-        step_cols = 1 if mesh.cols == 1 else refine
-        fine_cols = fine.cols
-        marker_nodes = np.array([(i // mesh.cols) * refine * fine_cols + (i % mesh.cols) * step_cols
+        marker_nodes = np.array([(i // mesh.cols) * refine * fine.cols + (i % mesh.cols) * refine
                                  for i in range(mesh.nodes.shape[0])])
         masters = np.unique(np.concatenate([marker_nodes, fine.bottom, fine.top]))
         dofs = fine.node_dofs(masters)
@@ -92,14 +90,14 @@ class Condensed:
             K_c = K[dofs][:, dofs].toarray() - K[dofs][:, slave] @ lu.solve(K[slave][:, dofs].toarray())
             K_c = (K_c + K_c.T) / 2   # symmetric to rounding
         # Lumped masses: each node's to its nearest master.
-        node_mass = fine.lumped_mass(density)[::d]
+        node_mass = fine.lumped_mass(density)[::2]
         nearest = np.argmin(np.linalg.norm(fine.nodes[:, None] - fine.nodes[masters][None], axis=2), axis=1)
-        mass = np.repeat(np.bincount(nearest, weights=node_mass, minlength=masters.size), d)
-        where = {n: k for k, n in enumerate(masters)}
-        local_y = lambda nodes: np.array([where[n] * d + d - 1 for n in nodes])  # noqa: E731
+        mass = np.repeat(np.bincount(nearest, weights=node_mass, minlength=masters.size), 2)
+        local = lambda nodes: np.searchsorted(masters, nodes)  # noqa: E731  (masters are sorted)
         segments = (np.eye(fine.cols) if segment_edges is None else fine.segment_integrals(segment_edges))
-        marker_dofs = np.array([[where[n] * d if d == 2 else -1, where[n] * d + d - 1] for n in marker_nodes])
-        return cls(fine, masters, K_c, mass, local_y(fine.bottom), local_y(fine.top), segments, marker_dofs)
+        marker_dofs = fine.node_dofs(local(marker_nodes)).reshape(-1, 2)
+        return cls(fine, masters, K_c, mass, fine.y_dofs(local(fine.bottom)), fine.y_dofs(local(fine.top)),
+                   segments, marker_dofs)
 
     def supports(self, stage_contact: bool) -> tuple[np.ndarray, np.ndarray]:
         """``Mesh.supports`` of the fine mesh on the condensed dofs."""
@@ -109,9 +107,7 @@ class Condensed:
 
     def marker_displacement(self, u: np.ndarray) -> np.ndarray:
         """Condensed dof vector(s) (..., n) -> marker displacements (..., N, 2)."""
-        u = np.asarray(u)
-        padded = np.concatenate([u, np.zeros((*u.shape[:-1], 1))], axis=-1)   # index -1: zero
-        return padded[..., self.marker_dofs]
+        return np.asarray(u)[..., self.marker_dofs]
 
 
 @dataclass(frozen=True)
@@ -135,13 +131,13 @@ class DynamicFE:
         mesh: specimen mesh (bottom nodes on the sensor, top nodes following the stage
             in y while in contact; in x as the mesh's boundary conditions say).
         rheology: the material's element (same operator on every dof).
-        gamma: Poisson ratio (``plane_fe`` only).
+        gamma: Poisson ratio.
         density: kg/m^3, lumped at the nodes.
         omega: constraint stabilisation frequency (rad/s).
     """
 
     def __init__(
-        self, mesh: Mesh, rheology: Element, gamma: float | None = None,
+        self, mesh: Mesh, rheology: Element, gamma: float,
         density: float = 1.5e3, omega: float = 1.0e3, refine: int = 1, segment_edges: np.ndarray | None = None,
     ) -> None:
         self.mesh, self.gamma, self.omega = mesh, gamma, omega

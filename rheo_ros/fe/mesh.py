@@ -1,11 +1,13 @@
 """FE meshes of the specimen and their stiffness per unit Young's modulus.
 
-Two geometries (contract, parameter ``geometry``):
+Two geometries (contract, parameter ``geometry``), both the 2D mesh of Section IV on
+the marker grid (rows x cols nodes over the face, bilinear quadrilaterals, plane
+stress, two degrees of freedom per node):
 
-- ``uniaxial``: the homogeneous 1D bar of the paper's Sections II-III, nodes P1..Pn
-  along the pushing axis, one degree of freedom (y) per node;
-- ``plane_fe``: the 2D mesh of Section IV on the marker grid (rows x cols nodes over
-  the face, bilinear quadrilaterals, plane stress), two degrees of freedom per node.
+- ``uniaxial``: the homogeneous block of the paper's Sections II-III: both faces
+  frictionless, so the block is in uniform uniaxial stress (which a Q4 mesh
+  represents exactly) and the Poisson ratio shows only in the lateral motion;
+- ``plane_fe``: the specimen's face with the boundary conditions of ``Boundary``.
 
 Node order is the marker order of the contract: row-major, bottom row first, left
 to right. The stiffness is split as in eq. 18-19, ``K = lambda^g K_lambda + mu^g K_mu``
@@ -32,11 +34,12 @@ import scipy.sparse as sparse
 
 GEOMETRIES = ("uniaxial", "plane_fe")
 CONTACTS = ("bonded", "frictionless")
+GAMMA_RANGE = (-1.0, 0.5)   # Poisson ratio of a stable isotropic plate in plane stress (open interval)
 
 
 @dataclass(frozen=True)
 class Boundary:
-    """How the bottom face meets the sensor and the top face the stage (``plane_fe``)."""
+    """How the bottom face meets the sensor and the top face the stage."""
 
     bottom: str = "bonded"
     top: str = "bonded"
@@ -55,9 +58,25 @@ def lame_per_unit_modulus(gamma: float) -> tuple[float, float]:
     where the effective first Lame constant is ``2 lambda mu / (lambda + 2 mu)``
     = ``gamma / (1 - gamma^2)``.
     """
-    if not -1.0 < gamma < 0.5:
+    if not GAMMA_RANGE[0] < gamma < GAMMA_RANGE[1]:
         raise ValueError(f"Poisson ratio {gamma} outside (-1, 0.5)")
     return gamma / (1.0 - gamma**2), 1.0 / (2.0 * (1.0 + gamma))
+
+
+FRICTIONLESS = Boundary("frictionless", "frictionless")
+
+
+def geometry_boundary(geometry: str, boundary: Boundary | None) -> Boundary:
+    """The boundary conditions of ``geometry``: ``None`` is its default (``uniaxial``:
+    both faces frictionless; ``plane_fe``: both bonded). A bonded face would restrain
+    the uniaxial block's lateral expansion, so it is refused there."""
+    if geometry == "plane_fe":
+        return boundary or Boundary()
+    for face in ("bottom", "top"):
+        if boundary is not None and getattr(boundary, face) != "frictionless":
+            raise ValueError(f"boundary.{face}: {getattr(boundary, face)!r} with geometry uniaxial, the block in "
+                             "uniaxial stress with both faces frictionless; use geometry plane_fe for a bonded face")
+    return FRICTIONLESS
 
 
 @dataclass(frozen=True)
@@ -76,40 +95,33 @@ class Mesh:
     @classmethod
     def build(
         cls, geometry: str, width: float, height: float, thickness: float, rows: int = 5, cols: int = 5,
-        boundary: Boundary = Boundary(),
+        boundary: Boundary | None = None,
     ) -> Mesh:
-        """``rows`` x ``cols`` nodes over the face (``uniaxial``: ``rows`` nodes, one column)."""
+        """``rows`` x ``cols`` nodes over the face; ``boundary`` None: the geometry's own
+        (``geometry_boundary``)."""
         if geometry not in GEOMETRIES:
             raise ValueError(f"geometry {geometry!r}: expected one of {', '.join(GEOMETRIES)}")
         if min(width, height, thickness) <= 0:
             raise ValueError("specimen width, height and thickness must be positive")
-        if geometry == "uniaxial":
-            cols = 1
-        if rows < 2 or (geometry == "plane_fe" and cols < 2):
+        if rows < 2 or cols < 2:
             raise ValueError("a mesh needs at least two nodes along each axis")
-        ys = np.linspace(0.0, height, rows)
-        xs = np.array([width / 2]) if cols == 1 else np.linspace(0.0, width, cols)
-        X, Y = np.meshgrid(xs, ys)
-        return cls(geometry, width, height, thickness, rows, cols, np.column_stack([X.ravel(), Y.ravel()]), boundary)
+        X, Y = np.meshgrid(np.linspace(0.0, width, cols), np.linspace(0.0, height, rows))
+        return cls(geometry, width, height, thickness, rows, cols, np.column_stack([X.ravel(), Y.ravel()]),
+                   geometry_boundary(geometry, boundary))
 
     def refined(self, factor: int) -> Mesh:
-        """The same specimen with every element split ``factor`` x ``factor`` (the 1D bar:
-        ``factor`` times as many elements); ``factor`` 1 is this mesh."""
+        """The same specimen with every element split ``factor`` x ``factor``; ``factor`` 1
+        is this mesh."""
         if factor < 1:
             raise ValueError(f"mesh refinement {factor}: must be a positive integer")
         if factor == 1:
             return self
-        cols = self.cols if self.geometry == "uniaxial" else (self.cols - 1) * factor + 1
         return Mesh.build(self.geometry, self.width, self.height, self.thickness,
-                          (self.rows - 1) * factor + 1, cols, self.boundary)
-
-    @property
-    def dofs_per_node(self) -> int:
-        return 1 if self.geometry == "uniaxial" else 2
+                          (self.rows - 1) * factor + 1, (self.cols - 1) * factor + 1, self.boundary)
 
     @property
     def n_dofs(self) -> int:
-        return self.nodes.shape[0] * self.dofs_per_node
+        return 2 * self.nodes.shape[0]
 
     @property
     def bottom(self) -> np.ndarray:
@@ -120,12 +132,17 @@ class Mesh:
     def top(self) -> np.ndarray:
         return np.arange((self.rows - 1) * self.cols, self.rows * self.cols)
 
-    def y_dofs(self, nodes: np.ndarray) -> np.ndarray:
-        return nodes * self.dofs_per_node + (self.dofs_per_node - 1)
+    @staticmethod
+    def y_dofs(nodes: np.ndarray) -> np.ndarray:
+        return 2 * nodes + 1
 
-    def node_dofs(self, nodes: np.ndarray) -> np.ndarray:
-        d = self.dofs_per_node
-        return (nodes[:, None] * d + np.arange(d)).ravel()
+    @staticmethod
+    def x_dofs(nodes: np.ndarray) -> np.ndarray:
+        return 2 * nodes
+
+    @staticmethod
+    def node_dofs(nodes: np.ndarray) -> np.ndarray:
+        return (nodes[:, None] * 2 + np.arange(2)).ravel()
 
     def supports(self, stage_contact: bool) -> tuple[np.ndarray, np.ndarray]:
         """Held dofs (bool, n_dofs) and each held dof's displacement per unit stage depth:
@@ -136,71 +153,18 @@ class Mesh:
         if stage_contact:
             held[self.y_dofs(self.top)] = True
             target[self.y_dofs(self.top)] = -1.0
-        if self.dofs_per_node == 2:
-            x_dofs = lambda nodes: 2 * nodes  # noqa: E731
-            if self.boundary.bottom == "bonded":
-                held[x_dofs(self.bottom)] = True
-            if stage_contact and self.boundary.top == "bonded":
-                held[x_dofs(self.top)] = True
-            if not held[0::2].any():   # nothing holds the block sideways: its centre stays put
-                centre = self.bottom[np.argmin(np.abs(self.nodes[self.bottom, 0] - self.width / 2))]
-                held[x_dofs(centre)] = True
+        if self.boundary.bottom == "bonded":
+            held[self.x_dofs(self.bottom)] = True
+        if stage_contact and self.boundary.top == "bonded":
+            held[self.x_dofs(self.top)] = True
+        if not held[0::2].any():   # nothing holds the block sideways: its centre stays put
+            centre = self.bottom[np.argmin(np.abs(self.nodes[self.bottom, 0] - self.width / 2))]
+            held[self.x_dofs(centre)] = True
         return held, target
-
-    def displacement_field(self, dofs: np.ndarray) -> np.ndarray:
-        """Dof vector(s) (..., n_dofs) -> nodal displacements (..., N, 2)."""
-        dofs = np.asarray(dofs)
-        n = self.nodes.shape[0]
-        if self.dofs_per_node == 2:
-            return dofs.reshape(*dofs.shape[:-1], n, 2)
-        out = np.zeros((*dofs.shape[:-1], n, 2))
-        out[..., 1] = dofs
-        return out
 
     @cached_property
     def stiffness_parts(self) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
         """``(K_lambda, K_mu)``: stiffness per unit Lame constant (N/m per Pa), sparse."""
-        if self.geometry == "uniaxial":
-            return sparse.csr_matrix((self.n_dofs, self.n_dofs)), self._bar_stiffness()
-        return self._plane_stiffness_parts()
-
-    def stiffness(self, gamma: float | None) -> sparse.csr_matrix:
-        """Stiffness per unit Young's modulus, ``lambda^g K_lambda + mu^g K_mu`` (eq. 18-19),
-        sparse. The uniaxial bar has no Poisson effect (``gamma`` ignored)."""
-        K_lambda, K_mu = self.stiffness_parts
-        if self.geometry == "uniaxial":
-            return K_mu
-        lam, mu = lame_per_unit_modulus(float(gamma))
-        return (lam * K_lambda + mu * K_mu).tocsr()
-
-    def lumped_mass(self, density: float) -> np.ndarray:
-        """Lumped nodal mass per dof (kg)."""
-        if self.geometry == "uniaxial":
-            seg = self.height / (self.rows - 1) * self.width * self.thickness * density
-            m = np.full(self.rows, seg)
-            m[[0, -1]] = seg / 2
-            return m
-        dx, dy = self.width / (self.cols - 1), self.height / (self.rows - 1)
-        m = np.zeros(self.nodes.shape[0])
-        for quad in self._quads():
-            m[quad] += density * dx * dy * self.thickness / 4
-        return np.repeat(m, 2)
-
-    # -- assembly ---------------------------------------------------------------------
-
-    def _bar_stiffness(self) -> sparse.csr_matrix:
-        k = self.width * self.thickness / (self.height / (self.rows - 1))  # A / L_e
-        element = k * np.array([[1.0, -1.0], [-1.0, 1.0]])
-        pairs = np.column_stack([np.arange(self.rows - 1), np.arange(1, self.rows)])
-        return _assemble(pairs, element, self.rows)
-
-    def _quads(self) -> np.ndarray:
-        """Node numbers of each element, counter-clockwise from its bottom left."""
-        r, j = np.meshgrid(np.arange(self.rows - 1), np.arange(self.cols - 1), indexing="ij")
-        first = (r * self.cols + j).ravel()
-        return np.column_stack([first, first + 1, first + self.cols + 1, first + self.cols])
-
-    def _plane_stiffness_parts(self) -> tuple[np.ndarray, np.ndarray]:
         # Bilinear quadrilateral, 2 x 2 Gauss points; strain in Voigt form (xx, yy, xy).
         I_lambda = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
         I_mu = np.diag([2.0, 2.0, 1.0])
@@ -222,22 +186,39 @@ class Mesh:
         dofs = np.stack([2 * self._quads(), 2 * self._quads() + 1], axis=2).reshape(-1, 8)
         return _assemble(dofs, ke_l, self.n_dofs), _assemble(dofs, ke_m, self.n_dofs)
 
+    def stiffness(self, gamma: float) -> sparse.csr_matrix:
+        """Stiffness per unit Young's modulus, ``lambda^g K_lambda + mu^g K_mu`` (eq. 18-19),
+        sparse."""
+        K_lambda, K_mu = self.stiffness_parts
+        lam, mu = lame_per_unit_modulus(float(gamma))
+        return (lam * K_lambda + mu * K_mu).tocsr()
+
+    def lumped_mass(self, density: float) -> np.ndarray:
+        """Lumped nodal mass per dof (kg)."""
+        dx, dy = self.width / (self.cols - 1), self.height / (self.rows - 1)
+        m = np.zeros(self.nodes.shape[0])
+        for quad in self._quads():
+            m[quad] += density * dx * dy * self.thickness / 4
+        return np.repeat(m, 2)
+
+    # -- assembly ---------------------------------------------------------------------
+
+    def _quads(self) -> np.ndarray:
+        """Node numbers of each element, counter-clockwise from its bottom left."""
+        r, j = np.meshgrid(np.arange(self.rows - 1), np.arange(self.cols - 1), indexing="ij")
+        first = (r * self.cols + j).ravel()
+        return np.column_stack([first, first + 1, first + self.cols + 1, first + self.cols])
+
     # -- what the sensors see ---------------------------------------------------------
 
     def interpolation(self, points: np.ndarray) -> sparse.csr_matrix:
         """(2 P, n_dofs): displacements (x, y interleaved) at ``points`` (P, 2) in m, by the
-        elements' bilinear shape functions (the bar: linear in y, no x motion)."""
+        elements' bilinear shape functions."""
         points = np.asarray(points, float)
         ys = self.nodes[:: self.cols, 1]
         r = np.clip(np.searchsorted(ys, points[:, 1], side="right") - 1, 0, self.rows - 2)
         ty = (points[:, 1] - ys[r]) / (ys[r + 1] - ys[r])
         rows, cols, vals = [], [], []
-        if self.geometry == "uniaxial":
-            for k, (ri, t) in enumerate(zip(r, ty)):
-                rows += [2 * k + 1] * 2
-                cols += [ri, ri + 1]
-                vals += [1 - t, t]
-            return sparse.csr_matrix((vals, (rows, cols)), shape=(2 * len(points), self.n_dofs))
         xs = self.nodes[: self.cols, 0]
         c = np.clip(np.searchsorted(xs, points[:, 0], side="right") - 1, 0, self.cols - 2)
         tx = (points[:, 0] - xs[c]) / (xs[c + 1] - xs[c])
@@ -257,11 +238,9 @@ class Mesh:
 
         The reactions are the consistent nodal loads of a pressure linear between the
         nodes; that pressure is recovered (the edge's consistent mass matrix solved) and
-        integrated exactly over each segment. The 1D bar carries one uniform pressure.
+        integrated exactly over each segment.
         """
         edges = np.asarray(edges, float)
-        if self.geometry == "uniaxial":
-            return (np.diff(edges) / self.width)[:, None]
         x = self.nodes[self.bottom, 0]
         h = np.diff(x)
         mass = np.zeros((x.size, x.size))

@@ -45,7 +45,7 @@ class ElasticShape:
     bottom_force: np.ndarray
 
 
-def elastic_shape(mesh: Mesh, gamma: float | None) -> tuple[np.ndarray, np.ndarray]:
+def elastic_shape(mesh: Mesh, gamma: float) -> tuple[np.ndarray, np.ndarray]:
     """Static elastic solution of ``mesh`` for a unit stage depth and unit E, under the
     mesh's boundary conditions: the dof displacements (m/m) and the bottom nodes' y
     reactions (N/(Pa m), positive pressing the sensor)."""
@@ -86,7 +86,7 @@ class QuasiStaticFE:
         self._finer: QuasiStaticFE | None = None
         self._segments = None if segment_edges is None else self.fe_mesh.segment_integrals(segment_edges)
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
-        self._shapes: dict[float | None, ElasticShape] = {}
+        self._shapes: dict[float, ElasticShape] = {}
         self._table: np.ndarray | None = None
 
     def finer(self) -> QuasiStaticFE:
@@ -101,15 +101,15 @@ class QuasiStaticFE:
             self._finer = QuasiStaticFE(self.mesh, 2 * self.refine, edges)
         return self._finer
 
-    def shape(self, gamma: float | None) -> ElasticShape:
-        key = None if self.mesh.geometry == "uniaxial" else float(gamma)
+    def shape(self, gamma: float) -> ElasticShape:
+        key = float(gamma)
         if key not in self._shapes:
             if len(self._shapes) >= self.SHAPES_KEPT:
                 del self._shapes[next(iter(self._shapes))]
             self._shapes[key] = self._solve_shape(key)
         return self._shapes[key]
 
-    def _solve_shape(self, gamma: float | None) -> ElasticShape:
+    def _solve_shape(self, gamma: float) -> ElasticShape:
         u, bottom = elastic_shape(self.fe_mesh, gamma)
         force = bottom if self._segments is None else self._segments @ bottom
         return ElasticShape((self._markers @ u).reshape(-1, 2), force)
@@ -119,7 +119,7 @@ class QuasiStaticFE:
     TABLE_GAMMA = (-0.95, 0.4999)
     TABLE_NODES = 32
 
-    def implied_force(self, u: np.ndarray, gamma: float | None) -> np.ndarray:
+    def implied_force(self, u: np.ndarray, gamma: float) -> np.ndarray:
         """Segment forces (N/Pa) per unit Young's modulus that marker displacements ``u``
         (N, 2) in m imply: the elastic shape closest to ``u`` (least squares over the
         markers) and its bottom reaction. The paper's ``J u`` (eq. 10, IV.B), computed on
@@ -128,11 +128,7 @@ class QuasiStaticFE:
         For speed (a closed form tries many ratios) the shapes come from a Chebyshev
         table over ``TABLE_GAMMA``, built on first use (``TABLE_NODES`` solves).
         """
-        if self.mesh.geometry == "uniaxial":
-            shape = self.shape(None)
-            phi, force = shape.displacement.ravel(), shape.bottom_force
-        else:
-            phi, force = self._shape_table(float(gamma))
+        phi, force = self._shape_table(float(gamma))
         return force * (np.ravel(u) @ phi) / (phi @ phi)
 
     def _shape_table(self, gamma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +146,7 @@ class QuasiStaticFE:
         return row[:k], row[k:]
 
     def predict(
-        self, model: Model, gamma: float | None, profile: StageProfile,
+        self, model: Model, gamma: float, profile: StageProfile,
         force_t: np.ndarray, marker_t: np.ndarray,
     ) -> Prediction:
         shape = self.shape(gamma)

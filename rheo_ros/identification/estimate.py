@@ -12,7 +12,7 @@ class Estimate:
     """Identified parameters.
 
     Attributes:
-        params: values by name (``E``, ``c1``, ``c2`` in Pa / Pa s; ``gamma`` in 2D).
+        params: values by name (``E``, ``c1``, ``c2`` in Pa / Pa s; ``gamma`` the Poisson ratio).
         method: the procedure (``paper_long_time``, ``paper_short_time``, ``whole_record``).
         equations: the paper's equations that produced the values.
         covariance: in the order of ``params``, or None where the method gives none.

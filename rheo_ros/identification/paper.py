@@ -8,6 +8,12 @@
 3. 2D: ``c2 J`` becomes ``c2 (lambda^g J_lambda + mu^g J_mu) = c2 K_gamma``; the
    equations of all bottom nodes are solved together by least squares for c2,
    ``c1 c2/(c1+c2)`` and the Poisson ratio (Section IV.B).
+4. The uniaxial block (Sections II-III): every node's force is the uniform stress
+   times its share of the face whatever the Poisson ratio, so the forces cannot
+   give it; the markers can: the block deforms by a uniform strain field, whose
+   lateral over axial strain is ``-gamma`` (``lateral_strain_ratio``). With gamma
+   fixed, the least squares of 3. give c2 and ``c1 c2/(c1+c2)``, on the uniform
+   field fitted to the markers (``uniform_strain_field``: every marker informs it).
 
 Every bottom segment is used by default. The paper drops P1 and P5 because their
 sensor segments cover half an element; here each segment sums to its node's
@@ -26,7 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from rheo_ros.experiment import StageProfile
-from rheo_ros.fe.mesh import lame_per_unit_modulus
+from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh, lame_per_unit_modulus
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
@@ -156,9 +162,7 @@ def displacement_during(record: Record, t_from: float, t_to: float) -> np.ndarra
     frames = (record.marker_t >= t_from) & (record.marker_t <= t_to)
     if not frames.any():
         raise RecordError(f"{record.source}: markers: no frame between {t_from:.3f} s and {t_to:.3f} s")
-    u = record.marker_displacement[frames].mean(axis=0)
-    u[record.mesh.bottom] = 0.0
-    return u
+    return held_by_the_sensor(record.mesh, record.marker_displacement[frames].mean(axis=0))
 
 
 def displacement_at_depth(record: Record, depth: float) -> np.ndarray:
@@ -176,20 +180,53 @@ def displacement_at_depth(record: Record, depth: float) -> np.ndarray:
     d = np.interp(record.marker_t[frames], record.stage_t, record.stage_depth)
     u = record.marker_displacement[frames]
     shape = np.tensordot(d, u, axes=(0, 0)) / (d @ d)
-    shape[record.mesh.bottom] = 0.0
-    return shape * depth
+    return held_by_the_sensor(record.mesh, shape) * depth
 
 
 def final_displacement(record: Record, since: float) -> np.ndarray:
     """Marker displacements (N, 2) averaged over the frames from ``since`` (s) to the end.
 
-    The bottom row is held by the sensor (the model's boundary condition): its
-    displacement is zero, not the noise its markers show.
+    The bottom row is held by the sensor: ``held_by_the_sensor``.
     """
     last = record.marker_t >= min(since, record.marker_t[-1])
-    u = record.marker_displacement[last].mean(axis=0)
-    u[record.mesh.bottom] = 0.0
+    return held_by_the_sensor(record.mesh, record.marker_displacement[last].mean(axis=0))
+
+
+def held_by_the_sensor(mesh: Mesh, u: np.ndarray) -> np.ndarray:
+    """Marker displacements (N, 2) with what the sensor holds set to zero, as the model
+    has it (not the noise those markers show): the bottom row's y, and its x where the
+    bottom is bonded (a frictionless bottom slides sideways with the block)."""
+    u = u.copy()
+    u[mesh.bottom, 1] = 0.0
+    if mesh.boundary.bottom == "bonded":
+        u[mesh.bottom, 0] = 0.0
     return u
+
+
+def _displacement_gradient(points: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares affine field ``u(p) = t + G (p - mean p)`` through displacements
+    ``u`` (N, 2) at ``points`` (N, 2): the translation ``t`` (2,) and the gradient ``G``
+    (2, 2), ``G[i, j] = d u_i / d x_j``."""
+    centred = points - points.mean(axis=0)
+    X = np.column_stack([np.ones(len(points)), centred])
+    coef, *_ = np.linalg.lstsq(X, u, rcond=None)     # (3, 2): rows 1, x, y; columns u_x, u_y
+    return coef[0], coef[1:].T
+
+
+def uniform_strain_field(points: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The displacements (N, 2) at ``points`` of the uniform strain field (plus rigid
+    motion) nearest to ``u`` (N, 2) in least squares: the homogeneous block's shape
+    with the markers' noise averaged over all of them."""
+    translation, gradient = _displacement_gradient(points, u)
+    return translation + (points - points.mean(axis=0)) @ gradient.T
+
+
+def lateral_strain_ratio(points: np.ndarray, u: np.ndarray) -> float:
+    """``-e_xx / e_yy`` of the uniform strain field fitted to displacements ``u`` (N, 2)
+    at ``points`` (N, 2): the Poisson ratio of a block in uniaxial stress along y."""
+    _, gradient = _displacement_gradient(points, u)
+    axial = gradient[1, 1]
+    return float(-gradient[0, 0] / axial) if axial != 0 else float("nan")
 
 
 # Final displacements: the specimen has recovered (to e^-15 of its Voigt strain) 15
@@ -256,7 +293,7 @@ def identify_paper(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
     guard: float = 0.1, final_window: float | None = None, forward: QuasiStaticFE | None = None,
 ) -> Estimate:
-    """E, c1, c2 (and the Poisson ratio in 2D) by the paper's equations.
+    """E, c1, c2 and the Poisson ratio by the paper's equations.
 
     Args:
         record: the run; its phases are read off the stage.
@@ -360,32 +397,38 @@ def solve_node_equations(
     ``K_gamma u``, whose four elements across the face are too stiff. A node
     whose displacement term or force jumps have the wrong sign for a push (its signal
     is within the noise: an edge node on a shallow push) is left out; the rest solve
-    the equations if they can (one node in 1D, two in 2D: three unknowns).
+    the equations if they can (one node with the block's gamma from the markers, two
+    where gamma is a third unknown).
     """
     mesh = record.mesh
-    u_dofs = u.ravel() if mesh.dofs_per_node == 2 else u[:, 1]
+    # The uniaxial block: gamma from the markers alone, the equations on the uniform field.
+    block_gamma = None
+    if mesh.geometry == "uniaxial":
+        block_gamma = _block_poisson_ratio(record, u)
+        u = uniform_strain_field(mesh.nodes, u)
     bottom_y = mesh.y_dofs(mesh.bottom[nodes])
     K_lambda, K_mu = mesh.stiffness_parts
-    g_lambda, g_mu = (K_lambda @ u_dofs)[bottom_y], (K_mu @ u_dofs)[bottom_y]
-    plane = mesh.geometry == "plane_fe"
+    g_lambda, g_mu = (K_lambda @ u.ravel())[bottom_y], (K_mu @ u.ravel())[bottom_y]
 
     def g_of(gamma: float) -> np.ndarray:
         if forward is not None:
             return forward.implied_force(u, gamma)[nodes][usable]
-        if not plane:
-            return g_mu
         lam, mu = lame_per_unit_modulus(gamma)
         return lam * g_lambda + mu * g_mu
 
+    def unpack(x: np.ndarray) -> tuple[float, float, float]:
+        """c2, eta, gamma from the search vector (gamma searched only on plane_fe)."""
+        return np.exp(x[0]), np.exp(x[1]), x[2] if block_gamma is None else block_gamma
+
     def residuals(x: np.ndarray) -> np.ndarray:
-        c2, eta = np.exp(x[0]), np.exp(x[1])
-        g = g_of(x[2]) if plane else g_mu
+        c2, eta, gamma = unpack(x)
+        g = g_of(gamma)
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
 
     usable = np.ones(nodes.size, bool)
-    g0 = g_of(0.3)
+    g0 = g_of(0.3 if block_gamma is None else block_gamma)
     usable = (g0 > 0) & (a > 0) & (b > 0)
-    if usable.sum() < (2 if plane else 1):
+    if usable.sum() < (2 if block_gamma is None else 1):
         raise RecordError(
             f"{record.source}: markers/force: displacement or force jump has the wrong sign "
             f"for a push at {', '.join(f'P{i + 1}' for i in nodes[~usable])} (no residual deformation, "
@@ -394,18 +437,17 @@ def solve_node_equations(
     dropped = tuple(int(i) for i in nodes[~usable])
     g_lambda, g_mu, a, b, F_end, g0 = (v[usable] for v in (g_lambda, g_mu, a, b, F_end, g0))
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
-    x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if plane else [])
+    search = block_gamma is None
+    x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if search else [])
     g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
-    lo = [-np.inf, -np.inf] + ([g_lo] if plane else [])
-    hi = [np.inf, np.inf] + ([g_hi] if plane else [])
+    lo = [-np.inf, -np.inf] + ([g_lo] if search else [])
+    hi = [np.inf, np.inf] + ([g_hi] if search else [])
     sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
-    c2, eta = float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
+    c2, eta, gamma = (float(v) for v in unpack(sol.x))
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")
     c1 = eta * c2 / (c2 - eta)
-    params = {"E": r * (c1 + c2), "c1": c1, "c2": c2}
-    if plane:
-        params["gamma"] = float(sol.x[2])
+    params = {"E": r * (c1 + c2), "c1": c1, "c2": c2, "gamma": gamma}
     return params, float(np.sqrt(np.mean(sol.fun**2))), dropped
 
 
@@ -417,8 +459,19 @@ def dropped_note(dropped: tuple[int, ...]) -> str:
             "for a push (its signal is within the noise; a deeper push determines it)")
 
 
+def _block_poisson_ratio(record: Record, u: np.ndarray) -> float:
+    """The uniaxial block's Poisson ratio from marker displacements ``u`` (N, 2)."""
+    gamma = lateral_strain_ratio(record.mesh.nodes, u)
+    if not GAMMA_RANGE[0] < gamma < GAMMA_RANGE[1]:   # also NaN: no axial strain at all
+        raise RecordError(f"{record.source}: markers: lateral over axial strain {-gamma:.4g} gives a Poisson ratio "
+                          f"outside ({GAMMA_RANGE[0]:g}, {GAMMA_RANGE[1]:g}): no uniaxial compression seen")
+    return gamma
+
+
 def _node_labels(nodes: np.ndarray, mesh_geometry: str, eqs: list[str]) -> tuple[str, ...]:
-    if mesh_geometry == "plane_fe":
+    if mesh_geometry == "uniaxial":   # every node's equation is the same up to its share of the face
+        eqs.append("gamma from the markers' lateral strain")
+    else:
         eqs.append("IV.B least squares over " + ",".join(f"P{i + 1}" for i in nodes))
     return tuple(eqs)
 

@@ -14,6 +14,7 @@ from scipy.optimize import least_squares
 from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.mesh import GAMMA_RANGE
 from rheo_ros.fe.quasistatic import Prediction, QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
@@ -22,7 +23,6 @@ from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
 
 
-GAMMA_RANGE = (-1.0, 0.5)   # Poisson ratio of a stable isotropic plate in plane stress (open interval)
 SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
 # The streams' clock offsets against the stage's (s, positive: stamped late). Beyond
 # +-DELAY_LIMIT a shifted sample could cross a phase boundary (0.05 s are left out at
@@ -93,9 +93,7 @@ class WholeRecordProblem:
         self._force = self.record.force[self._use]
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
-        self.plane = self.record.mesh.geometry == "plane_fe"
-        self.names = (tuple(self.model.parameters) + (("gamma",) if self.plane else ())
-                      + (DELAYS if self.delays else ()))
+        self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
 
     @property
@@ -110,7 +108,7 @@ class WholeRecordProblem:
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k in self.model.parameters})
         return self.forward.predict(
-            model, params.get("gamma"), self.profile, self.record.force_t[self._use] - params.get("tactile_delay", 0.0),
+            model, params["gamma"], self.profile, self.record.force_t[self._use] - params.get("tactile_delay", 0.0),
             self.record.marker_t - params.get("marker_delay", 0.0),
         )
 

@@ -34,24 +34,27 @@ def declare_all(node: Node) -> dict[str, Any]:
     One table for every node, so one parameters file serves them all. The node must be
     created with ``NODE_OPTIONS``.
     """
-    for name, default in DEFAULTS.items():
-        # Dynamic typing: a file's "150" for a float parameter means 150.0, as in the CLI;
-        # check_params below applies the one set of rules.
-        descriptor = ParameterDescriptor(description=PARAM_HELP.get(name, "see config/rheo_ros.yaml"),
-                                         dynamic_typing=True)
-        if node.has_parameter(name):  # declared from the file: keep its value, give it the table's descriptor
-            node.set_descriptor(name, descriptor)
-        else:
-            node.declare_parameter(name, default, descriptor)
+    # Only the names set (declared from the overrides) are checked: a default that
+    # depends on others (uniaxial's frictionless faces) is check_params' to fill in.
     given = {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_PARAMETERS}
     try:
-        return check_params(given, f"node {node.get_name()}")
+        params = check_params(given, f"node {node.get_name()}")
     except ParamsError:
         # rclpy's shutdown destroys every node it tracks, and a subclass's destroy_node
         # would trip over the attributes its refused __init__ never set (a traceback
         # after the one-line error): the node goes now, as the plain rclpy Node it is.
         Node.destroy_node(node)
         raise
+    for name in DEFAULTS:
+        # Dynamic typing: a file's "150" for a float parameter means 150.0, as in the CLI;
+        # check_params above applies the one set of rules.
+        descriptor = ParameterDescriptor(description=PARAM_HELP.get(name, "see config/rheo_ros.yaml"),
+                                         dynamic_typing=True)
+        if node.has_parameter(name):  # declared from the file: keep its value, give it the table's descriptor
+            node.set_descriptor(name, descriptor)
+        else:  # the value the node runs with, which the parameter services then serve (rheo record)
+            node.declare_parameter(name, params[name], descriptor)
+    return params
 
 
 def node_help(name: str, summary: str) -> str:

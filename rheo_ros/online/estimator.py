@@ -233,7 +233,7 @@ class PhaseIdentifier:
         boundary (the measured force is mid-jump there, the quasi-static model has jumped)."""
         model = Model(three_element(params["E"], params["c1"], params["c2"]))
         profile = rec.profile()
-        p = self.forward.predict(model, params.get("gamma"), profile, rec.force_t, rec.marker_t[:1])
+        p = self.forward.predict(model, params["gamma"], profile, rec.force_t, rec.marker_t[:1])
         edges = np.array([profile.t_pull_start, profile.t_pull_end, profile.t_keep_end])
         use = np.abs(rec.force_t[:, None] - edges[None]).min(axis=1) >= 0.05
         err = p.force.sum(axis=1)[use] - rec.force.sum(axis=1)[use]
@@ -419,11 +419,11 @@ class OnlineEstimator:
         positions (T, N, 2) in m, for the current push's profile as known now."""
         profile = profile or self.segmenter.profile
         p = {n: v for n, v in zip(update.names, update.values)}
-        if profile is None or not all(np.isfinite(p.get(n, 0.5)) for n in BASE_PARAMETERS):
+        if profile is None or not all(np.isfinite(p[n]) for n in BASE_PARAMETERS):
             raise ValueError("no determined estimate to predict with")
         model = Model(three_element(p["E"], p["c1"], p["c2"]))
         t = np.asarray(t, float)
-        pred = self.identify.forward.predict(model, p.get("gamma"), profile, t, t)
+        pred = self.identify.forward.predict(model, p["gamma"], profile, t, t)
         return pred.force.sum(axis=1), self.mesh.nodes[None] + pred.displacement
 
 
