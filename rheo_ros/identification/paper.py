@@ -442,7 +442,7 @@ def solve_node_equations(
     g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
     lo = [-np.inf, -np.inf] + ([g_lo] if search else [])
     hi = [np.inf, np.inf] + ([g_hi] if search else [])
-    sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-10, ftol=1e-10, gtol=1e-10)
     c2, eta, gamma = (float(v) for v in unpack(sol.x))
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")

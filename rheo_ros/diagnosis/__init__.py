@@ -1,0 +1,1 @@
+"""Model discovery: compare a model with the measurements, find what it misses."""

@@ -1,0 +1,174 @@
+"""Model against measurement: residual statistics per phase and per signal, judged
+against the sensor noise the data show.
+
+For each phase (before contact, pull, keep, release) and each signal (every tactile
+segment P1..Pn, their total, the marker mesh) it gives the RMS and the bias of the
+residuals, both over the signal's noise, a whiteness test (Ljung-Box: a right model
+leaves white residuals, a missing effect leaves a slow structure) and the time
+windows where the residuals' running mean stands out of the noise.
+
+Only live tactile readings count (``identification.noise``): the dead band reads an
+exact zero where the true force is small, and clipped noise leaves a small positive
+reading where it is zero; either would look like adhesion or drift to a comparison
+that took the readings at face value.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.identification.noise import SensorNoise, sensor_noise
+from rheo_ros.models.effects import Model
+from rheo_ros.record import Record
+
+PHASES = ("before", "pull", "keep", "release")
+WINDOW_S = 1.0        # running mean over this span (s) for systematic windows
+WINDOW_SIGMAS = 4.0   # a window stands out when its mean exceeds this many of its own std
+MAX_LAGS = 20         # Ljung-Box lags (fewer on short series: a fifth of the samples)
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Residuals of one signal in one phase.
+
+    Attributes:
+        signal: ``P1``..``Pn``, ``total`` (N) or ``markers`` (m).
+        phase: ``before``, ``pull``, ``keep`` or ``release``.
+        samples: residuals counted.
+        rms, bias: in the signal's unit.
+        noise: the sensor noise std of one residual (same unit).
+        whiteness_p: Ljung-Box p-value (small: the residuals are correlated in time).
+        windows: (start, end) times (s) where the running mean stands out of the noise.
+    """
+
+    signal: str
+    phase: str
+    samples: int
+    rms: float
+    bias: float
+    noise: float
+    whiteness_p: float
+    windows: tuple[tuple[float, float], ...]
+
+    @property
+    def rms_over_noise(self) -> float:
+        return self.rms / self.noise if self.noise > 0 else float("nan")
+
+
+def phase_of(t: np.ndarray, profile: StageProfile) -> np.ndarray:
+    """Index into ``PHASES`` of each time ``t`` (s)."""
+    edges = [profile.t_pull_start, profile.t_pull_end, profile.t_keep_end]
+    return np.searchsorted(edges, np.asarray(t), side="right")
+
+
+def ljung_box_p(r: np.ndarray, lags: int = MAX_LAGS) -> float:
+    """Ljung-Box p-value of a residual series ``r`` being white (NaN when too short)."""
+    r = np.asarray(r, float)
+    n = r.size
+    h = min(lags, n // 5)
+    if h < 1:
+        return float("nan")
+    r = r - r.mean()
+    denom = r @ r
+    if denom == 0:
+        return float("nan")
+    rho = np.array([r[:-k] @ r[k:] for k in range(1, h + 1)]) / denom
+    q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, h + 1)))
+    return float(chi2.sf(q, h))
+
+
+def systematic_windows(t: np.ndarray, r: np.ndarray, noise: float) -> tuple[tuple[float, float], ...]:
+    """Spans of ``t`` where the running mean of ``r`` over ``WINDOW_S`` exceeds
+    ``WINDOW_SIGMAS`` x ``noise`` / sqrt(samples in the window)."""
+    if t.size < 3 or not noise > 0:
+        return ()
+    dt = float(np.median(np.diff(t)))
+    w = max(int(round(WINDOW_S / dt)), 1)
+    if t.size < w:
+        return ()
+    mean = np.convolve(r, np.ones(w) / w, mode="valid")
+    out = np.abs(mean) > WINDOW_SIGMAS * noise / np.sqrt(w)
+    spans = []
+    i = 0
+    while i < out.size:
+        if out[i]:
+            j = i
+            while j + 1 < out.size and out[j + 1]:
+                j += 1
+            spans.append((float(t[i]), float(t[j + w - 1])))
+            i = j + 1
+        else:
+            i += 1
+    return tuple(spans)
+
+
+def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
+                   profile: StageProfile) -> list[ResidualStats]:
+    """Per-phase statistics of one signal's residuals ``r`` (T,) or (T, k) at times ``t``;
+    a (T, k) signal (the markers' coordinates) is pooled over its columns."""
+    r2 = np.asarray(r, float).reshape(len(t), -1)
+    which = phase_of(t, profile)
+    out = []
+    for i, name in enumerate(PHASES):
+        sel = which == i
+        if not sel.any():
+            continue
+        x = r2[sel]
+        series = x.mean(axis=1)   # markers: the mean over coordinates keeps a shared drift visible
+        per_sample = noise / np.sqrt(x.shape[1])
+        out.append(ResidualStats(
+            signal=signal, phase=name, samples=int(x.size), rms=float(np.sqrt(np.mean(x**2))),
+            bias=float(x.mean()), noise=float(noise), whiteness_p=ljung_box_p(series),
+            windows=systematic_windows(t[sel], series, per_sample),
+        ))
+    return out
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A model's residuals against one record: ``stats`` per signal and phase."""
+
+    model: str
+    stats: tuple[ResidualStats, ...]
+
+    def get(self, signal: str, phase: str) -> ResidualStats | None:
+        return next((s for s in self.stats if s.signal == signal and s.phase == phase), None)
+
+    def rmse_by_phase(self) -> dict[str, float]:
+        """RMS error of the total force per phase (N), as the JSON report has it."""
+        return {s.phase: s.rms for s in self.stats if s.signal == "total"}
+
+
+def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
+            delays: tuple[float, float] = (0.0, 0.0), noise: SensorNoise | None = None) -> Comparison:
+    """Residuals of ``model`` (with its parameter values) and ``gamma`` against ``record``.
+
+    Args:
+        forward: the forward model (``Setup.forward_model()``).
+        delays: the tactile and marker streams' clock offsets (s) the fit found.
+        noise: the record's sensor noise (default: estimated from it).
+    """
+    noise = noise or sensor_noise(record)
+    profile = record.profile()
+    p = forward.predict(model, gamma, profile, record.force_t - delays[0], record.marker_t - delays[1])
+    rf = np.where(noise.force_live, p.force - record.force, np.nan)
+    stats: list[ResidualStats] = []
+    for j in range(rf.shape[1]):
+        live = noise.force_live[:, j]
+        if live.sum() >= 3 and np.isfinite(noise.force_std[j]):
+            stats += residual_stats(f"P{j + 1}", record.force_t[live], rf[live, j], noise.force_std[j], profile)
+    every = noise.force_live.all(axis=1) & np.all(np.isfinite(noise.force_std))
+    if every.sum() >= 3:
+        total_noise = float(np.sqrt(np.sum(noise.force_std**2)))
+        stats += residual_stats("total", record.force_t[every], rf[every].sum(axis=1), total_noise, profile)
+    # Each marker's start is a nuisance (the fit profiles it out): residuals about its mean.
+    rm = p.displacement - (record.markers - record.mesh.nodes[None])
+    rm = rm - rm.mean(axis=0)
+    stats += residual_stats("markers", record.marker_t, rm.reshape(len(record.marker_t), -1),
+                            noise.marker_std, profile)
+    return Comparison(model.name, tuple(stats))

@@ -1,0 +1,62 @@
+"""Model against measurement: residual statistics per phase and signal, judged against
+the sensor noise the data show."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rheo_ros.diagnosis.compare import compare, ljung_box_p, systematic_windows
+from rheo_ros.identification.paper import identify_paper
+from rheo_ros.identification.refine import refine
+from rheo_ros.io.bag import read_bag
+from rheo_ros.models.effects import Model
+from rheo_ros.models.elements import three_element
+from rheo_ros.params import Setup
+
+BAGS = Path(__file__).resolve().parent.parent / "bags"
+
+
+def fitted_comparison(name):
+    bag = read_bag(BAGS / name)
+    forward = Setup(bag.params).forward_model()
+    fit = refine(bag.record, identify_paper(bag.record, forward=forward), forward=forward)
+    p, r = fit.params, fit.residual_rms
+    model = Model(three_element(p["E"], p["c1"], p["c2"]))
+    return compare(bag.record, model, p["gamma"], forward, (r["tactile_delay_s"], r["marker_delay_s"]))
+
+
+def test_ljung_box_tells_white_noise_from_a_slow_structure():
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(2000)
+    assert ljung_box_p(white) > 0.01
+    assert ljung_box_p(white + np.sin(np.linspace(0, 6, 2000))) < 1e-6
+
+
+def test_a_window_stands_out_only_where_the_mean_leaves_the_noise():
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 20, 0.02)
+    r = rng.standard_normal(t.size)
+    assert systematic_windows(t, r, 1.0) == ()
+    r[(t > 8) & (t < 12)] += 1.0   # one noise std for 4 s: 7 stds of a 1 s mean
+    (start, end), = systematic_windows(t, r, 1.0)
+    assert 7.0 < start < 9.0 and 11.0 < end < 13.0
+
+
+def test_a_right_model_leaves_white_residuals_at_the_noise_in_every_phase():
+    c = fitted_comparison("clean_short_keep")
+    checked = [s for s in c.stats if s.samples >= 100]
+    assert {s.phase for s in checked} >= {"pull", "keep", "release"}
+    for s in checked:
+        # RMS of n residuals over the noise: 1 within ~1/sqrt(2n) plus the noise estimate's 3 %.
+        assert 0.9 < s.rms_over_noise < 1.1, s
+        assert abs(s.bias) < 4 * s.noise / np.sqrt(s.samples) + 0.1 * s.noise, s
+        assert s.windows == (), s
+    assert min(s.whiteness_p for s in checked) > 1e-3
+
+
+def test_a_missing_relaxation_branch_shows_in_the_force_as_systematic_windows():
+    c = fitted_comparison("effect_relaxation_branch")
+    keep = c.get("total", "keep")
+    assert keep.rms_over_noise > 10 and keep.whiteness_p < 1e-6 and keep.windows   # measured 27
+    assert c.rmse_by_phase()["keep"] == pytest.approx(keep.rms)
