@@ -84,10 +84,86 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+class ProgressBar:
+    """One line on stderr, redrawn in place on a terminal (a line per step otherwise):
+    elapsed time, a bar of the diagnosis's candidates, the step."""
+
+    WIDTH = 20
+
+    def __init__(self) -> None:
+        import time
+
+        self._clock = time.monotonic
+        self._start = self._clock()
+        self._tty = sys.stderr.isatty()
+
+    def __call__(self, step: str) -> None:
+        import re
+
+        done = re.search(r"\((\d+)/(\d+)\)", step)
+        filled = round(self.WIDTH * (int(done[1]) - 1) / int(done[2])) if done else 0
+        bar = "#" * filled + "." * (self.WIDTH - filled)
+        line = f"rheo analyze: [{bar}] {self._clock() - self._start:5.1f} s  {step}"
+        if self._tty:
+            print(f"\r\x1b[K{line}", end="", file=sys.stderr, flush=True)
+        else:
+            print(line, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._tty:
+            print(file=sys.stderr)
+
+
+def _analyze(args: argparse.Namespace) -> int:
+    from rheo_ros.diagnosis.analyze import analyze
+
+    bar = None if args.quiet else ProgressBar()
+    try:
+        result = analyze(args.bag, effects=args.add or (), params_file=args.params_file,
+                         discover_effects=not args.no_discover, progress=bar)
+    finally:
+        if bar:
+            bar.close()
+    report = result.to_json()
+    _write_json(args.json, report)
+    if args.report:
+        from rheo_ros.reports.html import write_report
+
+        path = write_report(result, args.report)
+        report_line = f"report: {path}"
+    else:
+        report_line = ""
+    print(format_analysis(report))
+    if report_line:
+        print(report_line)
+    return 0
+
+
+def format_analysis(report: dict[str, Any]) -> str:
+    """The analysis as a person reads it in a terminal: the models side by side, the verdict."""
+    est = report["estimate"]
+    lines = [f"{report['bag']}: " + ", ".join(f"{p['name']} {p['t_start']:.2f}-{p['t_end']:.2f} s"
+                                             for p in report["phases"])]
+    lines.append("closed form (" + est["method"] + "): " + ", ".join(
+        f"{k} {est[k]:.4g}" for k in ("E", "c1", "c2", "gamma")))
+    lines.append(f"{'model':<52} {'RMS force (N)':>13} {'pull':>9} {'keep':>9} {'release':>9} {'BIC':>12}")
+    for m in report["models"]:
+        ph = m["rmse_by_phase"]
+        lines.append(f"{m['name']:<52} {m['rmse_force']:>13.4g} " + " ".join(
+            f"{ph.get(p, float('nan')):>9.3g}" for p in ("pull", "keep", "release")) + f" {m['bic']:>12.6g}")
+    final = report["models"][-1]
+    lines.append(f"{final['name']}: " + ", ".join(
+        f"{k} {v:.4g}" + (f" +- {final['std'][k]:.2g}" if final["std"].get(k) is not None else " (not determined)")
+        for k, v in final["params"].items()))
+    lines.append(report["diagnosis"]["evidence"])
+    return "\n".join(lines)
+
+
 def _demo(args: argparse.Namespace) -> int:
     from rheo_ros.demo import run_demo
 
-    return run_demo(args.params_file, args.timeout)
+    effects = None if args.effect is None else [e for e in args.effect if e != "none"]
+    return run_demo(args.params_file, args.timeout, effects, report=not args.no_report)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -113,6 +189,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     c.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     c.set_defaults(func=_bench)
+    dg = bench.add_parser("diagnosis", help="confusion table of the model-discovery loop over generated bags with "
+                                            "random parameters, noise and hidden effects (~40 min for 100)")
+    dg.add_argument("--replicates", type=int, default=100, help="bags generated (default 100)")
+    dg.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    dg.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    dg.set_defaults(func=_bench)
     m = bench.add_parser("mesh", help="identification error against the FE mesh's refinement (data from a finer mesh)")
     m.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     m.set_defaults(func=_bench)
@@ -153,10 +235,25 @@ def build_parser() -> argparse.ArgumentParser:
     rn.add_argument("node", choices=NODES)
     rn.add_argument("args", nargs=argparse.REMAINDER, help="node arguments (--ros-args ...)")
     rn.set_defaults(func=_run)
+    an = sub.add_parser("analyze", help="identify, compare model and measurement, diagnose the missing effect, "
+                                        "add it and refit: the models side by side, JSON and an HTML report")
+    an.add_argument("bag", metavar="BAG", help="rosbag2 directory")
+    an.add_argument("--params-file", metavar="FILE", help="parameters file overriding the bag's own")
+    an.add_argument("--json", metavar="FILE", help="write the contract's JSON report")
+    an.add_argument("--report", metavar="DIR", help="write an HTML report (one self-contained file) into DIR")
+    an.add_argument("--add", action="append", metavar="EFFECT",
+                    help="effect to add to the base model (repeatable, in order): relaxation_branch, adhesion, "
+                         "strain_stiffening, sensor_drift, or one you registered")
+    an.add_argument("--no-discover", action="store_true", help="fit the base and --add models only, no diagnosis")
+    an.add_argument("--quiet", action="store_true", help="no progress bar")
+    an.set_defaults(func=_analyze)
     dm = sub.add_parser("demo", help="stage, simulator, segmenter and estimator as separate processes over DDS: "
                                      "each estimate as it arrives, the final one beside the true parameters")
     dm.add_argument("--params-file", metavar="FILE", help="parameters file (default: config/rheo_ros.yaml values)")
-    dm.add_argument("--timeout", type=float, default=120.0, metavar="S", help="give up after S seconds (default 120)")
+    dm.add_argument("--timeout", type=float, default=300.0, metavar="S", help="give up after S seconds (default 300)")
+    dm.add_argument("--effect", action="append", metavar="ID",
+                    help="hidden effect in the simulator (repeatable; default relaxation_branch; 'none' for a clean run)")
+    dm.add_argument("--no-report", action="store_true", help="do not record the run nor write the HTML report")
     dm.set_defaults(func=_demo)
     return parser
 

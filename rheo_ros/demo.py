@@ -1,9 +1,14 @@
 """``rheo demo``: the live system on the default experiment, end to end over DDS.
 
 Simulator (driving ``/clock``: as fast as the nodes exchange messages), stage (on
-simulated time), segmenter and estimator run as four processes; this process listens
-to ``/rheo/phase`` and ``/rheo/estimate``, prints each as it arrives, and ends with the
-final estimate beside the simulator's true parameters.
+simulated time), segmenter and estimator run as four processes, and ``rheo record``
+records the measurement topics; this process listens to ``/rheo/phase``,
+``/rheo/estimate`` and ``/rheo/diagnosis`` and prints each as it arrives. The
+simulator has a hidden effect (default: a second relaxation mode, the paper's own
+Section V.C finding on clay) that nobody tells the estimator: the demo ends with the
+three-element estimate beside the true parameters, the estimator's diagnosis (which
+effect is missing, the model with it, beside the truth), and the HTML report of
+``rheo analyze`` on the recorded bag.
 """
 
 from __future__ import annotations
@@ -52,11 +57,58 @@ def _format(update: dict) -> str:
             + ", ".join(parts) + f"  (force RMS {update['rmse_force']:.3g} N)")
 
 
-def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
-    """Run the four nodes, print the estimates; 0 when the final estimate arrived."""
+def _print_verdict(d: dict, params: dict) -> None:
+    """The estimator's diagnosis: each model's force error, the verdict, the last model beside the truth."""
+    print(f"\ndiagnosis after {d['stamp']:.1f} s of experiment: " + " -> ".join(
+        f"{m} (force RMS {rmse:.3g} N)" for m, (rmse, _) in d["models"].items()))
+    print("  " + d["evidence"])
+    truth = {"E": params["material.E"], "c1": params["material.c1"], "c2": params["material.c2"],
+             "gamma": params["material.gamma"]}
+    truth |= {k.removeprefix("effects."): v for k, v in params.items()
+              if k.startswith("effects.") and k.split(".")[1] in d["model"].split("+")}
+    print(f"  {d['model']}:")
+    print(f"  {'param':<30} {'estimate':>12} {'std':>10} {'true':>12} {'error %':>9}")
+    for k, v in d["params"].items():
+        std, true = d["std"].get(k, np.nan), truth.get(k)
+        err = f"{100 * (v / true - 1):9.3f}" if true else f"{'':>9}"
+        print(f"  {k:<30} {v:12.5g} {std:10.2g} {true if true is not None else float('nan'):12.5g} {err}")
+
+
+def _report(bag: Path, tmp: Path) -> None:
+    """``rheo analyze`` on the recorded bag, with its HTML report."""
+    from rheo_ros.diagnosis.analyze import analyze
+    from rheo_ros.record import RecordError
+    from rheo_ros.reports.html import write_report
+
+    print(f"\nrheo analyze {bag} (the recorded run, offline) ...", flush=True)
+    try:
+        result = analyze(bag)
+    except RecordError as exc:
+        print(f"rheo demo: the recorded bag could not be analysed: {exc}", file=sys.stderr)
+        return
+    found = ", ".join(result.missing_effects) or "none"
+    print(f"  missing effects found offline: {found}; force RMS " + " -> ".join(
+        f"{m.rmse_force:.3g}" for m in result.models) + " N")
+    print(f"report: {write_report(result, tmp / 'report')}")
+
+
+def run_demo(params_file: str | None = None, timeout: float = 300.0, effects: list[str] | None = None,
+             report: bool = True) -> int:
+    """Run the four nodes and the recorder, print the estimates and the diagnosis, write
+    the report; 0 when the final estimate and the diagnosis arrived.
+
+    Args:
+        effects: the simulator's hidden effects (None: the parameters file's, or
+            ``relaxation_branch`` when it has none; ``[]``: none).
+        report: record the run and write the HTML report of ``rheo analyze`` on it.
+    """
     params = load_params(params_file)
+    if effects is None:
+        effects = [e for e in params["simulator.effects"] if e] or ["relaxation_branch"]
+    params["simulator.effects"] = list(effects) or [""]
     params["simulator.clock"] = True
-    params["stage.wait_for_subscribers"] = 3      # simulator, segmenter, estimator: nobody misses the start
+    # simulator, segmenter, estimator (and the recorder): nobody misses the start
+    params["stage.wait_for_subscribers"] = 4 if report else 3
     env = dict(os.environ)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
@@ -64,9 +116,12 @@ def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
 
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from rheo_ros_interfaces.msg import Estimate, Phase
+    from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
 
-    from rheo_ros.io.messages import ESTIMATE_TOPIC, PHASE_TOPIC, read_estimate, stamp_ns
+    from rheo_ros.io.messages import (
+        DIAGNOSIS_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, PHASE_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, read_diagnosis,
+        read_estimate, stamp_ns,
+    )
 
     tmp = Path(tempfile.mkdtemp(prefix="rheo-demo-"))
     (tmp / "params.yaml").write_text(params_yaml(params))
@@ -86,28 +141,42 @@ def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
         updates.append(read_estimate(msg))
         print(_format(updates[-1]), flush=True)
 
+    verdicts: list[dict] = []
     node.create_subscription(Phase, PHASE_TOPIC, on_phase, qos)
     node.create_subscription(Estimate, ESTIMATE_TOPIC, on_estimate, qos)
+    node.create_subscription(Diagnosis, DIAGNOSIS_TOPIC, lambda m: verdicts.append(read_diagnosis(m)), qos)
     start = time.monotonic()
+    bag = tmp / "bag"
     try:
+        if report:
+            procs["recorder"] = subprocess.Popen(
+                [str(bin_dir / "rheo"), "record", STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC, "--out", str(bag),
+                 "--params-file", str(tmp / "params.yaml"), "--discovery-timeout", "60"],
+                env=env, stdout=(tmp / "recorder.log").open("w"), stderr=subprocess.STDOUT)
         for name in NODES:
             cmd = [str(bin_dir / name), "--ros-args", "--params-file", str(tmp / "params.yaml")]
             if name == "stage":
                 cmd += ["-p", "use_sim_time:=true"]
             procs[name] = subprocess.Popen(cmd, env=env, stdout=(tmp / f"{name}.log").open("w"),
                                            stderr=subprocess.STDOUT)
-        print(f"rheo demo: {', '.join(NODES)} started (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, logs in {tmp}); "
+        hidden = ", ".join(effects) or "none"
+        print(f"rheo demo: {', '.join(procs)} started (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, logs in {tmp}); "
               f"pushing {params['stage.depth'] * 1e3:g} mm at {params['stage.velocity'] * 1e3:g} mm/s, "
-              f"keep {params['stage.keep_time']:g} s", flush=True)
-        final = None
-        while final is None:
-            rclpy.spin_once(node, timeout_sec=0.1)
-            final = next((u for u in updates if u["final"]), None)
-            dead = [n for n, p in procs.items() if p.poll() is not None]
-            if dead or time.monotonic() - start > timeout:
-                why = f"{', '.join(dead)} exited" if dead else f"no final estimate after {timeout:g} s"
-                print(f"rheo demo: error: {why} (logs in {tmp})", file=sys.stderr)
-                return 1
+              f"keep {params['stage.keep_time']:g} s; hidden effect in the simulator: {hidden}", flush=True)
+
+        def wait_for(done, what: str) -> bool:
+            while not done():
+                rclpy.spin_once(node, timeout_sec=0.1)
+                dead = [n for n, p in procs.items() if p.poll() is not None]
+                if dead or time.monotonic() - start > timeout:
+                    why = f"{', '.join(dead)} exited" if dead else f"no {what} after {timeout:g} s"
+                    print(f"rheo demo: error: {why} (logs in {tmp})", file=sys.stderr)
+                    return False
+            return True
+
+        if not wait_for(lambda: any(u["final"] for u in updates), "final estimate"):
+            return 1
+        final = next(u for u in updates if u["final"])
         wall = time.monotonic() - start
         truth = {"E": params["material.E"], "c1": params["material.c1"], "c2": params["material.c2"],
                  "gamma": params["material.gamma"]}
@@ -117,10 +186,15 @@ def run_demo(params_file: str | None = None, timeout: float = 120.0) -> int:
         for k, v in truth.items():
             est, std = final["params"].get(k, np.nan), final["std"].get(k, np.nan)
             print(f"  {k:<6} {est:12.5g} {std:10.2g} {v:12.5g} {100 * (est / v - 1):9.3f} {(est - v) / std:9.2f}")
-        effects = params["simulator.effects"]
-        if any(effects):
-            print(f"  (the simulator had hidden effects {', '.join(e for e in effects if e)}: "
-                  "the three-element fit is then misspecified)")
+        if effects:
+            print(f"  (the simulator had hidden effects {hidden}: the three-element fit is then misspecified)")
+        print("\nwaiting for the estimator's diagnosis (the model-discovery loop on the push) ...", flush=True)
+        if not wait_for(lambda: verdicts, "diagnosis"):
+            return 1
+        _print_verdict(verdicts[0], params)
+        if report:
+            stop_processes([procs.pop("recorder")])
+            _report(bag, tmp)
         return 0
     finally:
         stop_processes(procs.values())

@@ -50,7 +50,7 @@ DEFAULTS: dict[str, Any] = {
     "segmenter.contact_force": 0.005, "segmenter.max_release": 600.0,
     "estimator.refine": True, "estimator.undetermined_std": 0.3, "estimator.gamma_std": 0.05,
     "estimator.rate_std": 0.3, "estimator.pre_contact": 2.0, "estimator.max_push_time": 3600.0,
-    "estimator.stale_after": 2.0, "estimator.diagnostics_period": 1.0,
+    "estimator.stale_after": 2.0, "estimator.diagnostics_period": 1.0, "estimator.diagnose": True,
 }
 
 
@@ -96,6 +96,8 @@ PARAM_HELP: dict[str, str] = {
     "estimator.max_push_time": "s, a longer push is dropped so that memory stays bounded",
     "estimator.stale_after": "s without a message after which a topic is stale (WARN; phases go on without it)",
     "estimator.diagnostics_period": "s between /diagnostics messages",
+    "estimator.diagnose": "after release, find the effect the three-element model misses and publish the verdict "
+                          "on /rheo/diagnosis",
     "rates.stage": "Hz", "rates.tactile": "Hz", "rates.markers": "Hz",
     "material.E": "Pa", "material.c1": "Pa s", "material.c2": "Pa s", "material.gamma": "Poisson ratio",
     "material.density": "kg/m^3",

@@ -28,11 +28,16 @@ class DeadBand:
     force: np.ndarray
     cells: np.ndarray
 
+    def threshold(self, force_std: np.ndarray) -> np.ndarray:
+        """(nodes,) N: the smallest live segment force, given each segment's noise std
+        (N): three cell stds above the threshold in every cell (a segment's std is
+        sqrt(cells) cell stds, its margin cells x 3 cell stds). A reading below it
+        says the force was at most about this much."""
+        return self.force + 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
+
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
-        """(T, nodes) mask of live readings for segment forces (T, nodes) in N, given
-        each segment's noise std (N): three cell stds above the threshold in every cell
-        (a segment's std is sqrt(cells) cell stds, its margin cells x 3 cell stds)."""
-        return np.asarray(force) >= self.force + 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
+        """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""
+        return np.asarray(force) >= self.threshold(force_std)
 
 
 @dataclass(frozen=True)

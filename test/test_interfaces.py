@@ -21,7 +21,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rheo_ros_interfaces.action import Identify
-from rheo_ros_interfaces.msg import Estimate, Phase
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
 
 PKG = Path(__file__).resolve().parent.parent / "interfaces" / "rheo_ros_interfaces"
 NAN = float("nan")
@@ -54,7 +54,7 @@ def _fields(text: str) -> dict:
     return fields
 
 
-@pytest.mark.parametrize("msg_type", [Estimate, Phase], ids=lambda t: t.__name__)
+@pytest.mark.parametrize("msg_type", [Estimate, Phase, Diagnosis], ids=lambda t: t.__name__)
 def test_message_fields_are_those_of_the_msg_file(msg_type):
     expected = _fields((PKG / "msg" / f"{msg_type.__name__}.msg").read_text())
     assert list(msg_type.get_fields_and_field_types().items()) == list(expected.items())
@@ -255,7 +255,7 @@ def test_identify_action_across_processes(monkeypatch):
 def test_rclpy_cdr_decodes_with_rosbags_from_the_msg_text():
     typestore = get_typestore(Stores.ROS2_KILTED)
     types = {}
-    for name in ("Phase", "Estimate"):
+    for name in ("Phase", "Estimate", "Diagnosis"):
         types.update(get_types_from_msg((PKG / "msg" / f"{name}.msg").read_text(),
                                         f"rheo_ros_interfaces/msg/{name}"))
     typestore.register(types)

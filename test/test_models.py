@@ -225,7 +225,7 @@ def test_one_sided_retraction_matches_an_ode_solver_with_a_contact_event():
     peak = stress(pull.y[:, -1], V)
     assert abs(r.stress[0] - stress(follow_at.y[:, -1], -speed)) < 1e-6 * peak
     assert abs(r.strain[1] - free.sol(t_release + 10.0).sum()) < 1e-6 * D
-    assert r.stress[1] == 0.0 and abs(r.stress_released) < 1e-9 * peak
+    assert r.stress[1] == 0.0
 
 
 def test_a_fast_retraction_lets_go_at_once():

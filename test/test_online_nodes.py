@@ -14,11 +14,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rheo_ros_interfaces.action import Identify
-from rheo_ros_interfaces.msg import Estimate, Phase
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
 from sensor_msgs.msg import Image
 
 from rheo_ros.io.bag import simulate_to_bag
-from rheo_ros.io.messages import read_estimate
+from rheo_ros.io.messages import read_diagnosis, read_estimate
 from rheo_ros.online.estimator import estimate_bag
 from rheo_ros.params import Setup, load_params, params_yaml
 
@@ -87,8 +87,10 @@ def replay(short_bag, tmp_path_factory):
     for k in range(2):
         tmp = tmp_path_factory.mktemp(f"replay{k}")
         g = Graph(k, tmp)
-        estimates, phases = [], []
+        estimates, phases, verdicts = [], [], []
         g.node.create_subscription(Estimate, "/rheo/estimate", lambda m: estimates.append(read_estimate(m)), LATCHED)
+        g.node.create_subscription(Diagnosis, "/rheo/diagnosis", lambda m: verdicts.append(read_diagnosis(m)),
+                                   LATCHED)
         g.node.create_subscription(Phase, "/rheo/phase", phases.append, LATCHED)
         try:
             params = ["--ros-args", "--params-file", str(short_bag / "params.yaml")]
@@ -104,14 +106,16 @@ def replay(short_bag, tmp_path_factory):
             late_node.create_subscription(Estimate, "/rheo/estimate", late.append, LATCHED)
             g.executor.add_node(late_node)
             g.spin_until(lambda: late, 10, "the last estimate for a late subscriber")
+            g.spin_until(lambda: verdicts, 120, "the diagnosis after release")
             time.sleep(0.5)
             g.executor.spin_once(timeout_sec=0.1)
-            runs.append({"estimates": estimates, "phases": phases, "late": late,
+            runs.append({"estimates": estimates, "phases": phases, "late": late, "verdicts": verdicts,
                          "estimator_log": (tmp / "estimator.log").read_text()})
         finally:
             g.close()
-    offline = estimate_bag(str(short_bag / "bag"))
-    return runs, offline
+    diagnoses = []
+    offline = estimate_bag(str(short_bag / "bag"), diagnoses=diagnoses)
+    return runs, offline + (diagnoses,)
 
 
 def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
@@ -119,7 +123,7 @@ def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
     (The node publishes a phase's closed form as soon as it has it, so it may come
     before the previous phase's fit: the updates are compared per phase and method;
     each lane keeps its own order.)"""
-    runs, (_, updates, errors) = replay
+    runs, (_, updates, errors, _) = replay
     assert errors == []
     for run in runs:
         got = run["estimates"]
@@ -143,18 +147,34 @@ def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
 
 
 def test_segmenter_node_publishes_each_phase_as_the_core_finds_it(replay):
-    runs, (phases, _, _) = replay
+    runs, (phases, _, _, _) = replay
     for run in runs:
         got = [(p.experiment, p.name, round(p.start.sec + p.start.nanosec * 1e-9, 6)) for p in run["phases"]]
         assert got == [(e.experiment, e.name, round(e.t_start, 6)) for e in phases]
 
 
 def test_a_late_subscriber_gets_the_last_estimate(replay):
-    runs, (_, updates, _) = replay
+    runs, (_, updates, _, _) = replay
     for run in runs:
         assert len(run["late"]) == 1
         last = read_estimate(run["late"][0])
         assert (last["phase"], last["method"]) == (updates[-1].phase, updates[-1].method)
+
+
+def test_the_estimator_publishes_the_offline_diagnosis_after_release(replay):
+    """The model-discovery loop runs in the node after release: the same verdict, models
+    and parameters as the offline core on the same bag (a clean run: adequate)."""
+    runs, (_, _, _, diagnoses) = replay
+    assert len(diagnoses) == 1
+    d = diagnoses[0]
+    assert d.adequate and d.missing_effects == () and d.models == ("three_element",)
+    for run in runs:
+        (got,) = run["verdicts"]
+        assert got["adequate"] and got["missing_effects"] == [] and got["model"] == "three_element"
+        assert list(got["candidates"]) == list(d.candidates)
+        np.testing.assert_allclose(list(got["params"].values()), d.values, rtol=1e-9)
+        np.testing.assert_allclose([v[1] for v in got["models"].values()], d.bic, rtol=1e-9)
+        assert got["evidence"] == d.evidence and "is adequate" in got["evidence"]
 
 
 def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag, tmp_path):

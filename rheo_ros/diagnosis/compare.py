@@ -7,7 +7,7 @@ residuals, both over the signal's noise, a whiteness test (Ljung-Box: a right mo
 leaves white residuals, a missing effect leaves a slow structure) and the time
 windows where the residuals' running mean stands out of the noise.
 
-Only live tactile readings count (``identification.noise``): the dead band reads an
+Only live tactile readings away from the phase boundaries count (``identification.noise``): the dead band reads an
 exact zero where the true force is small, and clipped noise leaves a small positive
 reading where it is zero; either would look like adhesion or drift to a comparison
 that took the readings at face value.
@@ -23,6 +23,7 @@ from scipy.stats import chi2
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
+from rheo_ros.identification.refine import away_from_boundaries
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
 
@@ -93,18 +94,11 @@ def systematic_windows(t: np.ndarray, r: np.ndarray, noise: float) -> tuple[tupl
         return ()
     mean = np.convolve(r, np.ones(w) / w, mode="valid")
     out = np.abs(mean) > WINDOW_SIGMAS * noise / np.sqrt(w)
-    spans = []
-    i = 0
-    while i < out.size:
-        if out[i]:
-            j = i
-            while j + 1 < out.size and out[j + 1]:
-                j += 1
-            spans.append((float(t[i]), float(t[j + w - 1])))
-            i = j + 1
-        else:
-            i += 1
-    return tuple(spans)
+    # A running mean at index i covers samples i .. i + w - 1: a sample is in a window
+    # when any mean covering it stands out; runs that touch merge into one span.
+    covered = np.convolve(out.astype(int), np.ones(w, int), mode="full")[: t.size] > 0
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], covered.astype(int), [0]])))
+    return tuple((float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2]))
 
 
 def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
@@ -156,13 +150,15 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     noise = noise or sensor_noise(record)
     profile = record.profile()
     p = forward.predict(model, gamma, profile, record.force_t - delays[0], record.marker_t - delays[1])
-    rf = np.where(noise.force_live, p.force - record.force, np.nan)
+    # Readings at a phase boundary are mid-jump: left out, as the fit leaves them out.
+    counted = noise.force_live & away_from_boundaries(record.force_t, profile)[:, None]
+    rf = np.where(counted, p.force - record.force, np.nan)
     stats: list[ResidualStats] = []
     for j in range(rf.shape[1]):
-        live = noise.force_live[:, j]
+        live = counted[:, j]
         if live.sum() >= 3 and np.isfinite(noise.force_std[j]):
             stats += residual_stats(f"P{j + 1}", record.force_t[live], rf[live, j], noise.force_std[j], profile)
-    every = noise.force_live.all(axis=1) & np.all(np.isfinite(noise.force_std))
+    every = counted.all(axis=1) & np.all(np.isfinite(noise.force_std))
     if every.sum() >= 3:
         total_noise = float(np.sqrt(np.sum(noise.force_std**2)))
         stats += residual_stats("total", record.force_t[every], rf[every].sum(axis=1), total_noise, profile)

@@ -150,17 +150,16 @@ class QuasiStaticFE:
         force_t: np.ndarray, marker_t: np.ndarray,
     ) -> Prediction:
         shape = self.shape(gamma)
-        t = np.concatenate([force_t, marker_t])
+        # The last time is the end of the hold: adhesion keeps a share of the force then.
+        t_let_go = np.nextafter(profile.t_keep_end, -np.inf)
+        t = np.concatenate([force_t, marker_t, [t_let_go]])
         order = np.argsort(t, kind="stable")
         r = respond(model.rheology(), profile.program(), t[order])
         stress, depth = np.empty_like(t), np.empty_like(t)
         stress[order], depth[order] = r.stress, r.strain
         nf, nm = len(force_t), len(marker_t)
         scaled = stress * model.stress_scale(depth / self.mesh.height)
-        # The force just before the stage lets go feeds adhesion.
-        depth_released = profile.depth_at(np.nextafter(r.t_release, -np.inf))
-        release = Release(r.t_release, r.stress_released * shape.bottom_force
-                          * model.stress_scale(depth_released / self.mesh.height))
+        release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
         force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
         disp = depth[nf : nf + nm, None, None] * shape.displacement[None]
         return Prediction(force, disp)

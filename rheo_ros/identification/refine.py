@@ -34,6 +34,9 @@ SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the
 DELAYS = ("tactile_delay", "marker_delay")
 DELAY_LIMIT = 0.04
 DELAY_PRIOR_STD = 0.01
+# Force samples this close (s) to a phase boundary are left out: the measured force is
+# mid-jump there, the quasi-static model has jumped.
+BOUNDARY_GUARD = 0.05
 MAX_PASSES = 4          # weighted fits, the weights from the previous pass's residuals
 WEIGHT_CHANGE = 0.02    # weights that moved less than this (relative) are settled
 # A mesh's error ~ h^p: the error left after halving h is 2^-p of it; the error at h is the
@@ -62,13 +65,17 @@ class WholeRecordProblem:
         model: the model whose parameters are fitted (values are ignored).
         force_std: per-node force noise (N); marker_std: marker noise (m).
         profile: the stage profile (default: read off the record's stage).
-        guard: force samples this close (s) to a phase boundary are left out: the
-            measured force is mid-jump there, the quasi-static model has jumped.
+        guard: force samples this close (s) to a phase boundary are left out
+            (``BOUNDARY_GUARD``).
         forward: the forward model (default: the record's marker grid, nodal forces).
         live: (T, nodes) the force readings that count (default: all); readings in
             or near the tactile dead band are biased towards zero and left out.
         delays: also fit the tactile and marker streams' clock offsets against the
             stage's (``DELAYS``, s).
+        ceiling: (nodes,) N: the highest force a reading that is not live can stand for
+            (the live threshold); a model predicting more there is penalised by the
+            excess over the noise (a censored reading: the sensor read nothing, so the
+            force was below it). None: readings that are not live are left out.
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -80,16 +87,15 @@ class WholeRecordProblem:
     force_std: np.ndarray
     marker_std: float
     profile: StageProfile | None = None
-    guard: float = 0.05
+    guard: float = BOUNDARY_GUARD
     forward: QuasiStaticFE | None = None
     live: np.ndarray | None = None
     delays: bool = False
+    ceiling: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
-        edges = np.array([self.profile.t_pull_start, self.profile.t_pull_end, self.profile.t_keep_end])
-        t = self.record.force_t
-        self._use = np.abs(t[:, None] - edges[None]).min(axis=1) >= self.guard
+        self._use = away_from_boundaries(self.record.force_t, self.profile, self.guard)
         self._force = self.record.force[self._use]
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
@@ -105,6 +111,12 @@ class WholeRecordProblem:
     def marker_count(self) -> int:
         return int(self._disp.size)
 
+    @property
+    def samples(self) -> int:
+        """Readings the fit rests on: live force readings and marker coordinates (the
+        censored readings only bound the model, they add no count)."""
+        return int(self.live_counts.sum()) + self.marker_count
+
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k in self.model.parameters})
         return self.forward.predict(
@@ -118,7 +130,11 @@ class WholeRecordProblem:
         rm = p.displacement - self._disp
         rm = (rm - rm.mean(axis=0)) / self.marker_std
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
-        return np.concatenate([rf.ravel(), rm.ravel(), prior])
+        parts = [rf.ravel(), rm.ravel(), prior]
+        if self.ceiling is not None:
+            over = np.maximum(p.force - self.ceiling, 0.0) / self.force_std
+            parts.append(np.nan_to_num(over[~self._live]))
+        return np.concatenate(parts)
 
     def group_rms(self, params: dict[str, float]) -> tuple[np.ndarray, float]:
         """Unweighted RMS residual per node's force over its live readings (N; NaN for
@@ -132,6 +148,19 @@ class WholeRecordProblem:
         return rf, float(np.sqrt(np.sum((rm - rm.mean(axis=0)) ** 2) / (rm.size * (n - 1) / n)))
 
 
+def away_from_boundaries(t: np.ndarray, profile: StageProfile, guard: float = BOUNDARY_GUARD) -> np.ndarray:
+    """Mask of times ``t`` at least ``guard`` s from every phase boundary of ``profile``."""
+    edges = np.array([profile.t_pull_start, profile.t_pull_end, profile.t_keep_end])
+    return np.abs(np.asarray(t)[:, None] - edges[None]).min(axis=1) >= guard
+
+
+def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
+    """(nodes,) N: the largest force a reading that is not live can stand for (the
+    dead band's live threshold at noise ``force_std``); None without a dead band."""
+    band = record.dead_band
+    return None if band is None else band.threshold(np.nan_to_num(force_std))
+
+
 def _vector(names: tuple[str, ...], params: dict[str, float]) -> np.ndarray:
     return np.array([params[n] for n in names], dtype=float)
 
@@ -140,7 +169,7 @@ def refine(
     record: Record, initial: Estimate, model: Model | None = None,
     force_std: np.ndarray | None = None, marker_std: float | None = None,
     fixed: dict[str, float] | None = None, forward: QuasiStaticFE | None = None,
-    discretisation: bool = True,
+    discretisation: bool = True, max_iterations: int | None = None,
 ) -> Estimate:
     """Fit the whole record starting from ``initial`` (for example the paper's estimate).
 
@@ -152,6 +181,8 @@ def refine(
     a mesh twice as fine would cause (one Gauss-Newton step), times
     ``DISCRETISATION_FACTOR`` for what remains beyond it, as a systematic std in
     ``residual_rms['discretisation_<name>']`` and added to the variance.
+    ``max_iterations`` caps each least-squares solve (None: scipy's default); a fit it
+    stops says so in its message.
     """
     model = model or Model(three_element(1.0, 1.0, 1.0))
     scale_f = np.abs(record.force).max(axis=0) * 1e-2 + 1e-12
@@ -160,7 +191,7 @@ def refine(
         record, model,
         force_std if force_std is not None else scale_f,
         marker_std if marker_std is not None else 1e-5,
-        forward=forward, live=noise.force_live, delays=True,
+        forward=forward, live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
     )
     fixed = fixed or {}
     all_names = problem.names
@@ -170,7 +201,10 @@ def refine(
     p0 = _vector(names, start)
     delay = np.array([n in DELAYS for n in names])
     ratio = np.array([n == "gamma" for n in names])
-    positive = ~delay & ~ratio
+    signed = np.array([n in model.signed_parameters for n in names])
+    positive = ~delay & ~ratio & ~signed
+    # A signed parameter moves on a linear scale, in units of its start (1 when it starts at 0).
+    linear_scale = np.where(signed & (p0 != 0), np.abs(p0), 1.0)
     lo, hi = GAMMA_RANGE
 
     # Every parameter is searched unbounded (MINPACK's Levenberg-Marquardt) through a
@@ -179,8 +213,10 @@ def refine(
     # prior's std (a saturating map would stall the search at its flat ends). Clipped: a step on data that do not determine a parameter may
     # ask for e^1000; such a parameter is reported with an infinite std below, never a number.
     def values_of(x: np.ndarray) -> np.ndarray:
-        x = np.clip(x, -SEARCH_LIMIT, SEARCH_LIMIT)
-        return np.select([positive, ratio], [p0 * np.exp(np.where(positive, x, 0.0)), lo + (hi - lo) * expit(x)],
+        # A signed parameter is linear in x: no edge to its search.
+        x = np.where(signed, x, np.clip(x, -SEARCH_LIMIT, SEARCH_LIMIT))
+        return np.select([positive, ratio, signed],
+                         [p0 * np.exp(np.where(positive, x, 0.0)), lo + (hi - lo) * expit(x), p0 + linear_scale * x],
                          DELAY_PRIOR_STD * x)
 
     def unpack(x: np.ndarray) -> dict[str, float]:
@@ -188,10 +224,16 @@ def refine(
         return {n: free[n] if n in free else float(fixed[n]) for n in all_names}
 
     g0 = np.clip((p0 - lo) / (hi - lo), 1e-6, 1 - 1e-6)
-    x0 = np.select([positive, ratio], [0.0, logit(g0)], p0 / DELAY_PRIOR_STD)
+    x0 = np.select([positive, ratio, signed], [0.0, logit(g0), 0.0], p0 / DELAY_PRIOR_STD)
+
+    def max_nfev(n: int) -> int | None:
+        # least_squares hands MINPACK its finite-difference Jacobian as a callable (lmder), so
+        # nfev counts the function's own evaluations: about one per iteration, more on rejected steps.
+        return None if max_iterations is None else 2 * max_iterations
 
     def solve(x0: np.ndarray, tol: float):
-        return least_squares(lambda x: problem.residuals(unpack(x)), x0, method="lm", xtol=tol, ftol=tol)
+        return least_squares(lambda x: problem.residuals(unpack(x)), x0, method="lm", xtol=tol, ftol=tol,
+                             max_nfev=max_nfev(x0.size))
 
     # The clock offsets join once the rest is near its optimum: from a closed form 10 %
     # off, a step along an offset could jump it across a phase boundary, where the model
@@ -204,7 +246,7 @@ def refine(
             full[keep] = xs
             return problem.residuals(unpack(full))
 
-        part = least_squares(fun, x0[keep], method="lm", xtol=tol, ftol=tol)
+        part = least_squares(fun, x0[keep], method="lm", xtol=tol, ftol=tol, max_nfev=max_nfev(int(keep.sum())))
         full[keep] = part.x
         return full
 
@@ -227,21 +269,22 @@ def refine(
         sol = solve(sol.x, 1e-10)
         passes += 1
     params = unpack(sol.x)
-    dof = max(sol.fun.size - len(names), 1)
+    dof = max(problem.samples + len(DELAYS) - len(names), 1)
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
     # A parameter at the edge of its search, or one the residuals do not depend on, is
     # not determined by these data: infinite variance (its curvature would say ~0).
     column = np.linalg.norm(sol.jac, axis=0)
     values = values_of(sol.x)
-    loose = ((np.abs(sol.x) >= 0.99 * SEARCH_LIMIT) | (column <= 1e-12 * max(column.max(), 1e-300))
+    loose = ((~signed & (np.abs(sol.x) >= 0.99 * SEARCH_LIMIT)) | (column <= 1e-12 * max(column.max(), 1e-300))
              | (delay & (np.abs(values) >= 0.95 * DELAY_LIMIT)))
     bounded = ~loose
     cov_x = np.zeros((len(names), len(names)))
     cov_x[np.ix_(bounded, bounded)] = np.linalg.pinv(sol.jac[:, bounded].T @ sol.jac[:, bounded]) * chi2
     xc = np.clip(sol.x, -SEARCH_LIMIT, SEARCH_LIMIT)
     sig = expit(xc)
-    d = np.select([positive, ratio], [values, (hi - lo) * sig * (1 - sig)], DELAY_PRIOR_STD)  # dp / dx
+    d = np.select([positive, ratio, signed], [values, (hi - lo) * sig * (1 - sig), linear_scale],
+                  DELAY_PRIOR_STD)  # dp / dx
     cov = np.zeros((len(all_names), len(all_names)))
     free = np.array([all_names.index(n) for n in names])
     cov[np.ix_(free, free)] = cov_x * np.outer(d, d)
@@ -289,7 +332,7 @@ def refine(
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
         covariance=cov[np.ix_(physical, physical)],
         residual_rms={"force": float(np.sqrt(np.nanmean(rf**2))), "markers": rm, "reduced_chi2": chi2,
-                      "cost": cost, "marker_std": float(problem.marker_std),
+                      "cost": cost, "samples": float(problem.samples), "marker_std": float(problem.marker_std),
                       **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
                           problem.force_std, (record.mesh.cols,)))}, **systematic,
                       **{f"noise_P{i + 1}": float(v) for i, v in enumerate(noise.force_std)},

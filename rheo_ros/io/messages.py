@@ -158,8 +158,10 @@ def read_marker_array(msg: Any) -> np.ndarray:
 
 PHASE_TOPIC = "/rheo/phase"
 ESTIMATE_TOPIC = "/rheo/estimate"
+DIAGNOSIS_TOPIC = "/rheo/diagnosis"
 PHASE_TYPE = "rheo_ros_interfaces/msg/Phase"
 ESTIMATE_TYPE = "rheo_ros_interfaces/msg/Estimate"
+DIAGNOSIS_TYPE = "rheo_ros_interfaces/msg/Diagnosis"
 
 
 def _time(types: MessageTypes, t: float) -> Any:
@@ -205,4 +207,31 @@ def read_estimate(msg: Any) -> dict[str, Any]:
         "std": {} if std is None else dict(zip(names, std.tolist())), "rmse_force": float(msg.rmse_force),
         "samples": int(msg.samples), "undetermined": dict(zip(msg.undetermined, msg.reasons)),
         "message": msg.message, "final": bool(msg.final),
+    }
+
+
+def diagnosis_message(types: MessageTypes, d: Any) -> Any:
+    """``/rheo/diagnosis`` from an ``online.estimator.OnlineDiagnosis``."""
+    msg = types.lookup(DIAGNOSIS_TYPE)(
+        header=_header(types, ""), experiment=d.experiment, adequate=bool(d.adequate),
+        missing_effects=list(d.missing_effects), undecided=list(d.undecided), models=list(d.models),
+        rmse_force=types.float64s(d.rmse_force), bic=types.float64s(d.bic), candidates=list(d.candidates),
+        delta_bic=types.float64s(d.delta_bic), model=d.models[-1], names=list(d.names),
+        values=types.float64s(d.values), std=types.float64s(d.std), evidence=d.evidence,
+    )
+    _stamp(msg, int(round(d.stamp * 1e9)))
+    return msg
+
+
+def read_diagnosis(msg: Any) -> dict[str, Any]:
+    """A Diagnosis message as plain values."""
+    names = list(msg.names)
+    return {
+        "stamp": stamp_ns(msg) * 1e-9, "experiment": int(msg.experiment), "adequate": bool(msg.adequate),
+        "missing_effects": list(msg.missing_effects), "undecided": list(msg.undecided),
+        "models": dict(zip(msg.models, zip(np.asarray(msg.rmse_force, float).tolist(),
+                                           np.asarray(msg.bic, float).tolist()))),
+        "candidates": dict(zip(msg.candidates, np.asarray(msg.delta_bic, float).tolist())),
+        "model": msg.model, "params": dict(zip(names, np.asarray(msg.values, float).tolist())),
+        "std": dict(zip(names, np.asarray(msg.std, float).tolist())), "evidence": msg.evidence,
     }

@@ -14,7 +14,11 @@ a hook, so the base elements and the FE model never learn about it:
 
 A user registers an effect from their own package with ``@register_effect`` or
 through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
-time) are parameters to fit, not a list to enumerate.
+time) are parameters to fit, not a list to enumerate. For the model-discovery loop
+(``rheo_ros.diagnosis``) an effect also says where its fit may start (``starts``),
+which phases show it (``shows_in``), which of its parameters may take either sign
+(``signed``; the rest are positive) and what experiment would pin it down
+(``resolving_experiment``).
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from typing import ClassVar, TypeVar
 
 import numpy as np
 
+from rheo_ros.experiment import StageProfile
 from rheo_ros.models.elements import Element, Parallel, maxwell
 
 
@@ -44,10 +49,55 @@ class Release:
         return None if lost.size == 0 else cls(float(t[lost[0] + 1]), np.asarray(force[lost[0]]))
 
 
+@dataclass(frozen=True)
+class FitContext:
+    """What an effect's starting guesses may use (``Effect.starts``).
+
+    Attributes:
+        profile: the record's stage profile (phase times, depth).
+        params: the current model's fitted parameters (``E``, ``c1``, ``c2``, ``gamma``, ...).
+        peak_force: the largest force one tactile segment read (N).
+        force_t: (T,) s; residual: (T, nodes) N, measured minus the current model;
+        live: (T, nodes) the readings that count (above the dead band).
+    """
+
+    profile: StageProfile
+    params: Mapping[str, float]
+    peak_force: float
+    force_t: np.ndarray
+    residual: np.ndarray
+    live: np.ndarray
+
+
 class Effect:
-    """Base of all effects: a frozen dataclass whose float fields are its parameters."""
+    """Base of all effects: a frozen dataclass whose float fields are its parameters.
+
+    Class attributes a subclass sets:
+        id: the effect's name in models and reports.
+        shows_in: phases whose residuals it changes most (``before``, ``pull``,
+            ``keep``, ``release``): the diagnosis checks that adding it moved them.
+        signed: parameters that may take either sign (fitted on a linear scale; the
+            rest are positive and fitted on a log scale).
+        resolving_experiment: what to record when the data cannot decide on it.
+    """
 
     id: ClassVar[str]
+    shows_in: ClassVar[tuple[str, ...]] = ()
+    signed: ClassVar[tuple[str, ...]] = ()
+    resolving_experiment: ClassVar[str] = "a longer record"
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        """Where a fit of this effect may start; the fit tries each and keeps the best.
+        Default: the class's field defaults (a user effect without them overrides this)."""
+        try:
+            return (cls(),)
+        except TypeError:
+            raise TypeError(f"effect {cls.id!r}: give its fields defaults or override starts()") from None
+
+    def describe(self) -> str:
+        """The fitted effect in words, for the diagnosis's evidence."""
+        return ", ".join(f"{f.name} {getattr(self, f.name):.3g}" for f in fields(self))
 
     @property
     def parameters(self) -> dict[str, float]:
@@ -103,8 +153,25 @@ class RelaxationBranch(Effect):
     """
 
     id: ClassVar[str] = "relaxation_branch"
+    shows_in: ClassVar[tuple[str, ...]] = ("keep",)
+    resolving_experiment: ClassVar[str] = "a keep at least five times the fast relaxation time, sampled well within it"
     stiffness: float
     viscosity: float
+
+    @property
+    def time(self) -> float:
+        """The arm's relaxation time (s)."""
+        return self.viscosity / self.stiffness
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        # A fast mode within the keep: a time a twentieth and a quarter of it.
+        k = 0.5 * context.params.get("E", 1.0)
+        return tuple(cls(k, k * context.profile.keep_time * f) for f in (0.05, 0.25))
+
+    def describe(self) -> str:
+        return (f"a Maxwell arm of {self.stiffness:.3g} Pa and {self.viscosity:.3g} Pa s "
+                f"(relaxation time {self.time:.3g} s)")
 
     def material(self, element: Element) -> Element:
         arm = maxwell(self.stiffness, self.viscosity, (f"{self.id}.stiffness", f"{self.id}.viscosity"))
@@ -117,8 +184,28 @@ class SensorDrift(Effect):
     """Tactile offset (N per node) and linear drift (N/s per node) from t = 0."""
 
     id: ClassVar[str] = "sensor_drift"
+    shows_in: ClassVar[tuple[str, ...]] = ("before", "release")
+    signed: ClassVar[tuple[str, ...]] = ("offset", "rate")
+    resolving_experiment: ClassVar[str] = "a longer record before contact and after release"
     offset: float
     rate: float
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        guess = cls(0.01 * context.peak_force, 1e-4 * context.peak_force / max(context.profile.t_end, 1.0))
+        # The line through the residual where nothing presses (before contact, after release).
+        t, prof = context.force_t, context.profile
+        quiet = ((t < prof.t_pull_start) | (t > prof.t_keep_end))[:, None] & context.live
+        if quiet.sum() < 10:
+            return (guess,)
+        tt = np.broadcast_to(t[:, None], quiet.shape)[quiet]
+        if np.ptp(tt) <= 0:
+            return (guess, cls(float(np.mean(context.residual[quiet])), 0.0))
+        rate, offset = np.polyfit(tt, context.residual[quiet], 1)
+        return (guess, cls(float(offset), float(rate)))
+
+    def describe(self) -> str:
+        return f"a tactile offset of {self.offset:.3g} N per segment drifting by {self.rate:.3g} N/s"
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         return force + (self.offset + self.rate * np.asarray(t))[:, None]
@@ -128,12 +215,22 @@ class SensorDrift(Effect):
 @dataclass(frozen=True)
 class Adhesion(Effect):
     """The specimen sticks to the sensor after release: from the moment the stage
-    loses contact, each node keeps ``fraction`` of its force then, fading over
-    ``time`` (s). Shows in the release phase: the force does not return to zero."""
+    loses contact, each node keeps ``fraction`` of the force it carried as the stage
+    let go, fading over ``time`` (s). Shows in the release phase: the force does not
+    return to zero."""
 
     id: ClassVar[str] = "adhesion"
+    shows_in: ClassVar[tuple[str, ...]] = ("release",)
+    resolving_experiment: ClassVar[str] = "a longer record after release"
     fraction: float
     time: float
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        return (cls(0.1, max(context.profile.release_time, 1.0)),)
+
+    def describe(self) -> str:
+        return f"{100 * self.fraction:.3g} % of the force held after release, fading over {self.time:.3g} s"
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         if release is None:
@@ -152,7 +249,16 @@ class StrainStiffening(Effect):
     """
 
     id: ClassVar[str] = "strain_stiffening"
+    shows_in: ClassVar[tuple[str, ...]] = ("pull",)
+    resolving_experiment: ClassVar[str] = "a deeper push"
     coefficient: float
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        return (cls(1.0),)
+
+    def describe(self) -> str:
+        return f"stress x (1 + {self.coefficient:.3g} x strain)"
 
     def stress_scale(self, strain: np.ndarray) -> np.ndarray:
         return 1.0 + self.coefficient * np.maximum(strain, 0.0)
@@ -193,6 +299,11 @@ class Model:
         effects given when ``contact`` (T,) was lost."""
         scaled = force * self.stress_scale(strain)[:, None]
         return self.measured_force(t, scaled, Release.find(t, scaled, contact))
+
+    @property
+    def signed_parameters(self) -> tuple[str, ...]:
+        """Parameter names that may take either sign (the rest are positive)."""
+        return tuple(f"{e.id}.{name}" for e in self.effects for name in e.signed)
 
     @property
     def parameters(self) -> dict[str, float]:

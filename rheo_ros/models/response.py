@@ -61,14 +61,12 @@ class Program:
 @dataclass(frozen=True)
 class Response:
     """Stress and strain at times ``t``; ``t_release``: when the first stress-free
-    segment began (None: not in the program), ``stress_released``: the stress just
-    before it (what adhesion keeps)."""
+    segment began (None: not in the program)."""
 
     t: np.ndarray
     stress: np.ndarray
     strain: np.ndarray
     t_release: float | None = None
-    stress_released: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -137,7 +135,7 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
     stress, strain = np.zeros_like(t), np.zeros_like(t)
     x, eps = np.zeros(n), 0.0
     start, let_go = program.t0, False
-    t_release, stress_released = None, 0.0
+    t_release = None
     for k, seg in enumerate(program.segments):
         end = start + seg.duration
         if seg.one_sided and seg.strain_rate is not None:
@@ -147,7 +145,6 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
             raise ValueError("a strain-controlled segment after the drive let go")
         if seg.strain_rate is None and t_release is None:
             t_release = start
-            stress_released = float(x @ ss.C + ss.D * program.segments[k - 1].strain_rate) if k else 0.0
         last = k == len(program.segments) - 1
         mask = (t >= start) & ((t < end) | (last & (t >= end)))
         taus = t[mask] - start
@@ -170,7 +167,7 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
         if tau_end.size:
             x, eps = xs[-1], float(eps_s[-1])
         start = end
-    return Response(t, stress, strain, t_release, stress_released)
+    return Response(t, stress, strain, t_release)
 
 
 def _first_zero_stress(ss: StateSpace, x: np.ndarray, rate: float, duration: float) -> float:

@@ -1,7 +1,9 @@
 """Estimator node: E, c1, c2 and gamma updated as each phase completes (``ros2 run rheo_ros estimator``).
 
 Subscribes to the three measurement topics; publishes ``/rheo/estimate`` (the last one
-kept for late subscribers: transient-local), ``/diagnostics``, and the
+kept for late subscribers: transient-local), after each release the verdict of the
+model-discovery loop on ``/rheo/diagnosis`` (which effect the three-element model
+misses, the model with it; transient-local too), ``/diagnostics``, and the
 model's prediction of what is measured, for an overlay in Foxglove or PlotJuggler:
 
 - ``/rheo/measured/force`` and ``/rheo/prediction/force`` (``geometry_msgs/WrenchStamped``:
@@ -30,12 +32,14 @@ from concurrent.futures.process import BrokenProcessPool
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, WrenchStamped
+from rclpy._rclpy_pybind11 import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rheo_ros_interfaces.msg import Estimate
+from rheo_ros_interfaces.msg import Diagnosis, Estimate
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.io.messages import (
+    DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
     MARKERS_TOPIC,
     STAGE_TOPIC,
@@ -43,6 +47,7 @@ from rheo_ros.io.messages import (
     MarkerArrayEncoder,
     MessageError,
     MessageTypes,
+    diagnosis_message,
     estimate_message,
     read_joint_state,
     read_marker_array,
@@ -53,9 +58,11 @@ from rheo_ros.identification import estimate as identified
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.online.estimator import (
     Job,
+    OnlineDiagnosis,
     OnlineEstimator,
     Update,
     closed_form_in_worker,
+    diagnose_in_worker,
     fit_in_worker,
     worker_init,
 )
@@ -84,6 +91,8 @@ class EstimatorNode(Node):
         self.create_subscription(Image, TACTILE_TOPIC, self.on_tactile, SENSOR_QOS)
         self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
         self.estimates = self.create_publisher(Estimate, ESTIMATE_TOPIC, LATCHED_QOS)
+        self.verdicts = self.create_publisher(Diagnosis, DIAGNOSIS_TOPIC, LATCHED_QOS)
+        self.verdict = ""    # the last experiment's model verdict, while it says the base model misfits
         self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.measured_force = self.create_publisher(WrenchStamped, "/rheo/measured/force", 10)
         self.predicted_force = self.create_publisher(WrenchStamped, "/rheo/prediction/force", 10)
@@ -108,7 +117,7 @@ class EstimatorNode(Node):
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
-        self.outbox: queue.Queue[tuple[Update, float] | tuple[str, str]] = queue.Queue()
+        self.outbox: queue.Queue[tuple[Update | OnlineDiagnosis, float] | tuple[str, str]] = queue.Queue()
         self.results_ready = self.create_guard_condition(self.publish_results)
         self.lanes = [threading.Thread(target=self.closed_form_lane, name="estimator-closed-forms", daemon=True),
                       threading.Thread(target=self.fit_lane, name="estimator-fits", daemon=True)]
@@ -188,9 +197,17 @@ class EstimatorNode(Node):
             self.pools[lane] = self._start_pool(lane)
             raise RecordError(f"the {lane.replace('_', ' ')} worker process died; it was restarted") from None
 
-    def _hand_out(self, update: Update, arrival: float) -> None:
+    def _hand_out(self, update: Update | OnlineDiagnosis, arrival: float) -> None:
         self.outbox.put((update, arrival))
-        self.results_ready.trigger()
+        self._wake()
+
+    def _wake(self) -> None:
+        """Tell the executor's thread that results wait; a lane finishing while the node
+        shuts down finds the guard condition gone, and its result has nowhere to go."""
+        try:
+            self.results_ready.trigger()
+        except InvalidHandle:
+            pass
 
     def _failed(self, job: Job, exc: Exception) -> None:
         e = job.event
@@ -201,7 +218,7 @@ class EstimatorNode(Node):
         else:   # a fit must never take the node down
             self.last_error = f"{where}fit failed: {type(exc).__name__}: {exc}"
             self.outbox.put(("error", self.last_error))
-        self.results_ready.trigger()
+        self._wake()
 
     def closed_form_lane(self) -> None:
         while (item := self.closed_jobs.get()) is not None:
@@ -232,6 +249,12 @@ class EstimatorNode(Node):
             e = job.event
             self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
                                f"{', '.join(TOPICS[s] for s in job.stale)} (stale)") if job.stale else ""
+            fit = self.core.last_fit(e.experiment)
+            if e.name == "release" and self.core.config.diagnose and fit is not None:
+                try:
+                    self._hand_out(self._in_worker("fit", diagnose_in_worker, job, fit), arrival)
+                except Exception as exc:
+                    self._failed(job, exc)
 
     def publish_results(self) -> None:
         while not self.outbox.empty():
@@ -244,6 +267,9 @@ class EstimatorNode(Node):
                     self.get_logger().error(text)
                 continue
             update, arrival = item
+            if isinstance(update, OnlineDiagnosis):
+                self.publish_verdict(update)
+                continue
             self.estimates.publish(estimate_message(self.types, update))
             kind = "whole_record" if update.method == "whole_record" else "closed_form"
             self.latency[kind].append(time.perf_counter() - arrival)
@@ -252,6 +278,19 @@ class EstimatorNode(Node):
                 self.latest = update
             self.open_params = dict(zip(update.undetermined, update.reasons))
             self.log_update(update)
+
+    def publish_verdict(self, d: OnlineDiagnosis) -> None:
+        self.verdicts.publish(diagnosis_message(self.types, d))
+        steps = " -> ".join(f"{m} ({r:.3g} N)" for m, r in zip(d.models, d.rmse_force))
+        if d.missing_effects or d.undecided or not d.adequate:
+            found = f"missing {', '.join(d.missing_effects)}" if d.missing_effects else "no effect found"
+            undecided = f"; undecided: {', '.join(d.undecided)}" if d.undecided else ""
+            self.verdict = (f"experiment {d.experiment}: the three-element model misfits: {found}{undecided}; "
+                            f"force RMS {steps}" + ("" if d.adequate else "; the last model still misfits"))
+            self.get_logger().warning(self.verdict)
+        else:
+            self.verdict = ""
+            self.get_logger().info(f"experiment {d.experiment}: three_element adequate (force RMS {steps})")
 
     def log_update(self, u: Update) -> None:
         std = u.std
@@ -316,6 +355,8 @@ class EstimatorNode(Node):
                 reasons.append(f"{topic} stale: silent for {now - self.arrived[stream]:.1f} s")
         if self.last_error:
             reasons.append(self.last_error)
+        if self.verdict:
+            reasons.append(self.verdict)
         if self.open_params:
             reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
         if self.core.dropped_pushes:

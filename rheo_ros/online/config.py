@@ -47,6 +47,8 @@ class EstimatorConfig:
     max_push_time: s; a push longer than this is dropped (memory stays bounded).
     stale_after: s (wall clock, in the node) after which a silent topic stops holding a
         phase back.
+    diagnose: after release, run the model-discovery loop on the push (which effect the
+        three-element model misses; ``rheo_ros.diagnosis``) and publish its verdict.
     """
 
     refine: bool = True
@@ -56,3 +58,4 @@ class EstimatorConfig:
     pre_contact: float = 2.0
     max_push_time: float = 3600.0
     stale_after: float = 2.0
+    diagnose: bool = True

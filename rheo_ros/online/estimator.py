@@ -10,7 +10,9 @@ a job (``run_job``, pure numpy/scipy, safe in a worker thread) gives the updates
 - keep: eq. 6, 7, 10 with the keep's marker displacement (``identify_keep``), then the
   fit of pull and keep;
 - release: the paper's final-displacement solution (eq. 6+14, 7, 15-17, long- or
-  short-time), then the whole-record refinement.
+  short-time), then the whole-record refinement, then (``estimator.diagnose``) the
+  model-discovery loop on the whole push (``diagnose``): which effect the three-element
+  model misses, the model with it and the evidence.
 
 Every update says which parameters the data do not determine yet (NaN value, with
 the reason and the experiment that would determine it). Which samples a job uses is
@@ -29,10 +31,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, discover, fit_model, polish
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.paper import identify_keep, identify_paper, identify_pull
 from rheo_ros.identification.refine import refine
 from rheo_ros.models.effects import Model
@@ -76,6 +80,44 @@ class Update:
         if self.covariance is None:
             return {}
         return dict(zip(self.names, np.sqrt(np.diag(self.covariance)).tolist()))
+
+
+@dataclass(frozen=True)
+class OnlineDiagnosis:
+    """The model-discovery loop's verdict on one push (``/rheo/diagnosis``): the models
+    fitted in order (the base first) with their force RMS (N) and BIC, the candidates
+    tried on the base with their BIC change, and the last model's parameters."""
+
+    experiment: int
+    stamp: float
+    adequate: bool
+    missing_effects: tuple[str, ...]
+    undecided: tuple[str, ...]
+    models: tuple[str, ...]
+    rmse_force: np.ndarray
+    bic: np.ndarray
+    candidates: tuple[str, ...]
+    delta_bic: np.ndarray
+    names: tuple[str, ...]
+    values: np.ndarray
+    std: np.ndarray
+    evidence: str
+
+    @classmethod
+    def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdicts: list[Diagnosis]) -> OnlineDiagnosis:
+        last = models[-1].estimate
+        std = last.std
+        first = verdicts[0].candidates if verdicts else ()
+        return cls(
+            experiment=experiment, stamp=stamp, adequate=bool(verdicts and verdicts[-1].adequate),
+            missing_effects=tuple(v.missing_effect for v in verdicts if v.missing_effect),
+            undecided=verdicts[-1].undecided if verdicts else (), models=tuple(m.name for m in models),
+            rmse_force=np.array([m.rmse_force for m in models]), bic=np.array([m.bic for m in models]),
+            candidates=tuple(c.effect for c in first), delta_bic=np.array([c.delta_bic for c in first]),
+            names=tuple(last.params), values=np.array(list(last.params.values())),
+            std=np.array([std.get(n, np.inf) for n in last.params]),
+            evidence=" ".join(v.evidence for v in verdicts),
+        )
 
 
 @dataclass(frozen=True)
@@ -157,6 +199,24 @@ class PhaseIdentifier:
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
         return self._update(job.event, rec, fit, self._relaxation_unseen(rec, fit)), fit
+
+    def diagnose(self, job: Job, fit: Estimate) -> OnlineDiagnosis:
+        """The model-discovery loop on a release job's push (``rheo_ros.diagnosis``): the
+        base model refitted with the sensor noise as weights from the release ``fit``,
+        then each missing effect added until the model is adequate. Seconds to tens of
+        seconds: the node runs it in the fit lane, after the release's fit is out.
+
+        Raises:
+            RecordError: the job has no record.
+        """
+        rec, e = job.record, job.event
+        if rec is None:
+            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to diagnose")
+        noise = sensor_noise(rec)
+        base = polish(rec, self.forward, fit_model(rec, self.forward, (), fit.params, noise), noise)
+        # One process: the node's fit lane is a worker already.
+        models, verdicts = discover(rec, self.forward, base, noise=noise, workers=1)
+        return OnlineDiagnosis.of(e.experiment, float(rec.force_t[-1]), models, verdicts)
 
     # A slower relaxation (c2 this many times larger) that fits the data as well means the
     # data set no upper bound on c2: its std from the local curvature would mislead.
@@ -413,6 +473,10 @@ class OnlineEstimator:
         self._fits = {e.experiment: fit}
         return update
 
+    def last_fit(self, experiment: int) -> Estimate | None:
+        """The latest whole-record fit of ``experiment`` (None: none yet, or another push since)."""
+        return self._fits.get(experiment)
+
     def predict(self, update: Update, t: np.ndarray, profile: StageProfile | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
         """The model of ``update`` at stamps ``t``: total bottom force (N) and marker
@@ -459,12 +523,20 @@ def fit_in_worker(job: Job, start: Estimate, note: str = "") -> tuple[Update, Es
     return _identifier().fit(job, start, note)
 
 
-def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]]
+def diagnose_in_worker(job: Job, fit: Estimate) -> OnlineDiagnosis:
+    """``PhaseIdentifier.diagnose`` in a process made by ``worker_init``."""
+    return _identifier().diagnose(job, fit)
+
+
+def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]],
+                    diagnoses: list[OnlineDiagnosis] | None = None,
                     ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
     """Feed ``(stream, t, data)`` samples in order, run each job as it becomes ready.
 
     The offline path of the node: same core, same order of work. Returns the phases,
-    the updates and the errors (one line each).
+    the updates and the errors (one line each); with a ``diagnoses`` list (and
+    ``estimator.diagnose``), each release's verdict is appended to it, as the node
+    publishes it.
     """
     add = {"stage": estimator.add_stage, "force": estimator.add_force, "image": estimator.add_image,
            "markers": estimator.add_markers}
@@ -475,6 +547,10 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
         for job in jobs:
             try:
                 updates.extend(estimator.run_job(job))
+                fit = estimator.last_fit(job.event.experiment)
+                if (diagnoses is not None and job.event.name == "release" and estimator.config.diagnose
+                        and fit is not None):
+                    diagnoses.append(estimator.identify.diagnose(job, fit))
             except (RecordError, ValueError, np.linalg.LinAlgError) as exc:
                 errors.append(str(exc))
 
@@ -485,9 +561,11 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
     return phases, updates, errors
 
 
-def estimate_bag(path: str, params: dict | None = None) -> tuple[list[PhaseEvent], list[Update], list[str]]:
+def estimate_bag(path: str, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None
+                 ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
     """The estimator node's work on a bag, offline: same core, same samples, same order
-    of work (what a replay over DDS into the node must reproduce)."""
+    of work (what a replay over DDS into the node must reproduce); ``diagnoses`` as in
+    ``estimate_stream``."""
     from rheo_ros.io.bag import bag_samples, read_params
 
     params = params or read_params(path)
@@ -495,4 +573,4 @@ def estimate_bag(path: str, params: dict | None = None) -> tuple[list[PhaseEvent
         raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
     setup = Setup(params)
     estimator = OnlineEstimator(setup, setup.segmenter_config(), setup.estimator_config())
-    return estimate_stream(estimator, bag_samples(path))
+    return estimate_stream(estimator, bag_samples(path), diagnoses)

@@ -1,0 +1,168 @@
+"""``analyze``: a bag in, the model-discovery loop's result out (``rheo analyze``).
+
+It reads the bag, segments pull / keep / release, identifies the three-element
+parameters by the paper's equations, fits the base model over the whole record,
+adds the effects the user asks for, then diagnoses what is still missing, adds it
+and refits until the model is adequate (``discover``). The result carries every
+model fitted with its residuals, the verdicts, and the contract's JSON.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, Progress, add_effect, discover, fit_model, polish
+from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.noise import SensorNoise, sensor_noise
+from rheo_ros.identification.paper import identify_paper
+from rheo_ros.io.bag import read_bag
+from rheo_ros.models.effects import effect_class
+from rheo_ros.params import Setup, check_params, load_params
+from rheo_ros.record import Record
+
+BASE_PARAMS = ("E", "c1", "c2", "gamma")
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """What ``analyze`` found.
+
+    Attributes:
+        bag: the bag's path.
+        record: its measurements; setup: its parameters, built; forward: the forward
+            model every fit used.
+        noise: the sensor noise the data show.
+        closed_form: the paper's identification (eq. 6, 7, 10 / 14-17).
+        models: every model fitted, in the order tried: the base, the user's
+            additions, then each effect the diagnosis added.
+        diagnoses: the verdict on each model the loop judged, in order.
+        added: the effects the user asked for.
+    """
+
+    bag: str
+    record: Record
+    setup: Setup
+    forward: QuasiStaticFE
+    noise: SensorNoise
+    closed_form: Estimate
+    models: tuple[ModelFit, ...]
+    diagnoses: tuple[Diagnosis, ...]
+    added: tuple[str, ...] = ()
+
+    @property
+    def base(self) -> ModelFit:
+        return self.models[0]
+
+    @property
+    def final(self) -> ModelFit:
+        return self.models[-1]
+
+    @property
+    def missing_effects(self) -> tuple[str, ...]:
+        """The effects the diagnosis added, in the order found."""
+        return tuple(d.missing_effect for d in self.diagnoses if d.missing_effect)
+
+    def phases(self) -> list[dict[str, Any]]:
+        return [{"name": p.name, "t_start": float(p.t_start), "t_end": float(p.t_end)}
+                for p in self.record.profile().phases]
+
+    def to_json(self) -> dict[str, Any]:
+        """The contract's report: bag, phases, estimate, models, diagnosis."""
+        base_std = self.base.estimate.std
+        first = self.diagnoses[0] if self.diagnoses else None
+        # Not diagnosed (--no-discover): adequate is unknown, null.
+        diagnosis = first.to_json() if first else {"candidates": []}
+        diagnosis["missing_effect"] = self.missing_effects[0] if self.missing_effects else None
+        diagnosis["missing_effects"] = list(self.missing_effects)
+        diagnosis["adequate"] = bool(self.diagnoses[-1].adequate) if self.diagnoses else None
+        diagnosis["adequate_model"] = self.final.name if diagnosis["adequate"] else None
+        diagnosis["evidence"] = " ".join(d.evidence for d in self.diagnoses) or "not diagnosed (--no-discover)"
+        diagnosis["steps"] = [d.to_json() | {"model": d.model} for d in self.diagnoses]
+        return {
+            "bag": self.bag,
+            "phases": self.phases(),
+            "estimate": {
+                **{k: float(self.closed_form.params[k]) for k in BASE_PARAMS},
+                # The closed form has no covariance of its own: the std are the whole-record
+                # fit's of the same three-element model (its values are in models[0]).
+                "std": {k: _finite(base_std.get(k, np.nan)) for k in BASE_PARAMS},
+                "method": self.closed_form.method,
+                "equations": list(self.closed_form.equations),
+                "message": self.closed_form.message,
+            },
+            "models": [self._model_json(m) for m in self.models],
+            "diagnosis": diagnosis,
+        }
+
+    @staticmethod
+    def _model_json(m: ModelFit) -> dict[str, Any]:
+        std = m.estimate.std
+        return {
+            "name": m.name, "effects": list(m.effects),
+            "params": {k: float(v) for k, v in m.estimate.params.items()},
+            "std": {k: _finite(v) for k, v in std.items()},
+            "rmse_force": m.rmse_force, "rmse_by_phase": m.rmse_by_phase, "bic": m.bic,
+            "fit_to_noise": {k.removeprefix("fit_to_noise_"): _finite(v) for k, v in m.estimate.residual_rms.items()
+                             if k.startswith("fit_to_noise_")},
+            "message": m.estimate.message,
+        }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def analyze(
+    bag: str | Path, effects: Sequence[str] = (), params_file: str | Path | None = None,
+    discover_effects: bool = True, candidates: Sequence[str] | None = None,
+    progress: Progress | None = None, workers: int | None = None,
+) -> Analysis:
+    """Analyse a bag: identify, compare, diagnose, add what is missing, refit.
+
+    Args:
+        bag: a rosbag2 directory of the contract.
+        effects: effect ids to add to the base model, in order (``--add``).
+        params_file: parameters overriding the bag's own (``--params-file``).
+        discover_effects: run the diagnosis loop after the user's effects.
+        candidates: effect ids the diagnosis may try (default: the whole catalogue).
+        progress: called with a line of text at each step.
+        workers: processes for the candidates' fits (default: one per core).
+
+    Raises:
+        RecordError: unreadable bag, missing topic, malformed message, a phase too
+            short (the message names the file, topic or field).
+        ParamsError: a bad parameters file.
+        KeyError: an unknown effect id.
+    """
+    for effect_id in effects:
+        effect_class(effect_id)  # an unknown id fails before any work
+    say = progress or (lambda _: None)
+    params = check_params(load_params(params_file), str(params_file)) if params_file else None
+    say(f"reading {bag}")
+    contents = read_bag(bag, params)
+    params = check_params(contents.params, f"{bag}: parameters")
+    setup = Setup(params)
+    record = contents.record
+    forward = setup.forward_model()
+    noise = sensor_noise(record)
+    say("closed form (eq. 6, 7, 10 / 14-17)")
+    closed = identify_paper(record, forward=forward)
+    say("fitting three_element over the whole record")
+    base = polish(record, forward, fit_model(record, forward, (), closed.params, noise), noise)
+    models = [base]
+    for effect_id in effects:
+        current = models[-1]
+        say(f"fitting {current.name}+{effect_id}")
+        models.append(polish(record, forward, add_effect(record, forward, current, effect_id, noise), noise))
+    diagnoses: list[Diagnosis] = []
+    if discover_effects:
+        found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say,
+                                     workers=workers)
+        models += found[1:]
+    return Analysis(str(bag), record, setup, forward, noise, closed, tuple(models), tuple(diagnoses), tuple(effects))

@@ -1,0 +1,83 @@
+"""``rheo analyze`` on bad input: exit 2 and one line naming the file, topic or field,
+never a traceback; on a good bag, the contract's JSON."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BAGS = Path(__file__).resolve().parent.parent / "bags"
+
+
+def rheo(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rheo_ros", *args], capture_output=True, text=True, timeout=600)
+
+
+def damaged(tmp_path: Path, how: str) -> Path:
+    bag = tmp_path / "bag"
+    shutil.copytree(BAGS / "clean_short_keep", bag)
+    mcap = next(bag.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    if how == "truncated":
+        data = data[: len(data) // 3]
+    else:   # corrupted: a run of bytes in the middle of the chunks overwritten
+        mid = len(data) // 2
+        data[mid : mid + 4096] = bytes(4096)
+    mcap.write_bytes(bytes(data))
+    return bag
+
+
+def bad_params(tmp_path: Path) -> list[str]:
+    f = tmp_path / "bad.yaml"
+    f.write_text("/**:\n  ros__parameters:\n    tactile: {rows: 0}\n")
+    return [str(BAGS / "clean_short_keep"), "--params-file", str(f)]
+
+
+CASES = {
+    "not a bag": (lambda tmp: [str(tmp)], r"not a rosbag2 directory"),
+    "truncated mcap": (lambda tmp: [str(damaged(tmp, "truncated"))], r"cannot read bag"),
+    "corrupted mcap": (lambda tmp: [str(damaged(tmp, "corrupted"))], r"cannot read bag"),
+    "bad params file": (bad_params, r"tactile.rows"),
+    "unknown effect": (lambda tmp: [str(BAGS / "clean_short_keep"), "--add", "gravity"], r"unknown effect 'gravity'"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_exits_2_with_one_line_naming_what_is_wrong(tmp_path, case):
+    make_args, pattern = CASES[case]
+    out = rheo("analyze", *make_args(tmp_path), "--quiet")
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rheo: error: "), out.stderr
+    assert "Traceback" not in out.stderr
+    import re
+
+    assert re.search(pattern, lines[0]), lines[0]
+
+
+def test_a_bag_gives_the_contracts_json(tmp_path):
+    out_json = tmp_path / "report.json"
+    out = rheo("analyze", str(BAGS / "effect_strain_stiffening"), "--json", str(out_json), "--quiet")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out_json.read_text())
+    assert set(report) >= {"bag", "phases", "estimate", "models", "diagnosis"}
+    assert [p["name"] for p in report["phases"]] == ["pull", "keep", "release"]
+    assert set(report["estimate"]) >= {"E", "c1", "c2", "gamma", "std"}
+    assert set(report["estimate"]["std"]) == {"E", "c1", "c2", "gamma"}
+    for m in report["models"]:
+        assert set(m) >= {"name", "effects", "params", "rmse_force", "rmse_by_phase", "bic"}
+        assert set(m["rmse_by_phase"]) == {"pull", "keep", "release"}
+    assert report["models"][0]["name"] == "three_element" and report["models"][0]["effects"] == []
+    d = report["diagnosis"]
+    assert set(d) >= {"adequate", "missing_effect", "candidates", "evidence"}
+    assert d["missing_effect"] == "strain_stiffening" and d["adequate"] is True
+    assert {c["effect"] for c in d["candidates"]} == {"relaxation_branch", "adhesion", "strain_stiffening",
+                                                      "sensor_drift"}
+    assert all(set(c) >= {"effect", "delta_bic", "rmse_after"} for c in d["candidates"])
+    # The terminal shows the models side by side and the verdict.
+    assert "three_element+strain_stiffening" in out.stdout and "Verdict: strain_stiffening is missing" in out.stdout
