@@ -23,7 +23,7 @@ def test_three_quick_bags_give_a_complete_confusion_table():
         assert b["diagnosed"] != "failed", b["message"]
         assert b["seconds"] > 0 and b["simulate_seconds"] > 0
         assert np.isfinite(b["size"]) and b["size"] >= 0
-        assert 15.0 <= b["params"]["stage.keep_time"] <= 60.0
+        assert diagnosis.QUICK_KEEP[0] <= b["params"]["stage.keep_time"] <= diagnosis.QUICK_KEEP[1]
     assert bags[0]["size"] == 0.0 and bags[0]["effect"] == {}
     assert bags[1]["size"] > 0 and set(bags[1]["effect"]) == {"stiffness", "viscosity"}
     assert set(bags[2]["effect"]) == {"fraction", "time"}

@@ -14,7 +14,7 @@ import pytest
 
 import rheo_ros
 from rheo_ros.io.bag import simulate_to_bag
-from rheo_ros.models.effects import _REGISTRY, Effect, register_effect
+from rheo_ros.models.effects import Effect, register_effect, unregister_effect
 from rheo_ros.params import Setup, check_params
 
 # Not the committed bags' clay: stiffer, more viscous, a shallower push, a shorter keep.
@@ -84,6 +84,19 @@ def test_clean_data_are_adequate_and_no_effect_is_claimed(tmp_path, seed, extra)
     assert "is adequate" in d["evidence"]
 
 
+def test_a_keep_too_short_for_the_second_time_says_which_parameter_is_open_and_what_would_pin_it(tmp_path):
+    # A 28 s relaxation mode seen through a 5 s keep: the misfit is there, its time is not.
+    bag = make_bag(tmp_path, "run", 51, {"relaxation_branch": {"stiffness": 2.0e4, "viscosity": 6.0e5}},
+                   **{"stage.keep_time": 5.0, "stage.release_time": 20.0})
+    result = rheo_ros.analyze(bag)
+    evidence = result.to_json()["diagnosis"]["evidence"]
+    assert result.missing_effects == ("relaxation_branch",), evidence
+    assert "viscosity is not determined by these data" in evidence
+    assert "a keep at least five times the fast relaxation time" in evidence
+    std = result.models[1].estimate.std
+    assert std["relaxation_branch.viscosity"] > 0.3 * result.models[1].estimate.params["relaxation_branch.viscosity"]
+
+
 def test_two_hidden_effects_are_found_one_after_the_other_in_order_of_importance(tmp_path):
     # Stiffening changes the force by ~25 %, the relaxation arm by ~5 %.
     bag = make_bag(tmp_path, "run", 31, {"strain_stiffening": {"coefficient": 5.0},
@@ -114,7 +127,7 @@ class TactileCrosstalk(Effect):
 def user_effect():
     register_effect(TactileCrosstalk)
     yield TactileCrosstalk.id
-    del _REGISTRY[TactileCrosstalk.id]   # other tests see the package's catalogue only
+    unregister_effect(TactileCrosstalk.id)   # other tests see the package's catalogue only
 
 
 def test_a_users_own_effect_is_fitted_and_found(tmp_path, user_effect):
@@ -134,3 +147,35 @@ def test_an_effect_the_user_adds_is_fitted_side_by_side_with_the_base(tmp_path):
     assert [m["name"] for m in report["models"]] == ["three_element", "three_element+adhesion"]
     assert report["models"][1]["rmse_force"] < 0.2 * report["models"][0]["rmse_force"]
     assert np.isfinite(report["models"][1]["std"]["adhesion.fraction"])
+
+
+@dataclass(frozen=True)
+class RetardationBranch(Effect):
+    """A second Voigt element in series: as a standard linear solid, the same family of
+    responses as a Maxwell arm in parallel (relaxation_branch), in other parameters."""
+
+    id: ClassVar[str] = "test_retardation_branch"
+    shows_in: ClassVar[tuple[str, ...]] = ("keep",)
+    stiffness: float = 1.0e5
+    viscosity: float = 5.0e5
+
+    def material(self, element):
+        from rheo_ros.models.elements import Series, voigt
+
+        names = (f"{self.id}.stiffness", f"{self.id}.viscosity")
+        return Series((element, voigt(self.stiffness, self.viscosity, names)))
+
+
+def test_two_effects_that_explain_the_data_equally_are_left_undecided(tmp_path):
+    register_effect(RetardationBranch)
+    try:
+        bag = make_bag(tmp_path, "run", 12, {"relaxation_branch": {"stiffness": 1.0e4, "viscosity": 3.0e4}})
+        result = rheo_ros.analyze(bag, candidates=[RetardationBranch.id, "relaxation_branch"])
+    finally:
+        unregister_effect(RetardationBranch.id)
+    d = result.to_json()["diagnosis"]
+    assert d["missing_effect"] is None and not d["adequate"], d["evidence"]
+    assert set(d["undecided"]) == {RetardationBranch.id, "relaxation_branch"}
+    assert "The data cannot decide" in d["evidence"] and "To decide, record" in d["evidence"]
+    bic = {c["effect"]: c["delta_bic"] for c in d["candidates"]}
+    assert abs(bic[RetardationBranch.id] - bic["relaxation_branch"]) < 10

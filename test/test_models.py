@@ -6,7 +6,9 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from rheo_ros.models.effects import Effect, Model, RelaxationBranch, SensorDrift, effect_class, register_effect
+from rheo_ros.models.effects import (
+    Effect, Model, RelaxationBranch, SensorDrift, effect_class, register_effect, unregister_effect,
+)
 from rheo_ros.models.elements import (
     Dashpot,
     Parallel,
@@ -184,6 +186,9 @@ def test_user_effect_registers_and_resolves_by_id():
     assert model.parameters["test_softening.factor"] == 0.5
     with pytest.raises(KeyError, match="unknown effect"):
         effect_class("no_such_effect")
+    unregister_effect("test_softening")   # the rest of the session sees the package's catalogue
+    with pytest.raises(KeyError, match="unknown effect"):
+        effect_class("test_softening")
 
 
 def test_one_sided_retraction_matches_an_ode_solver_with_a_contact_event():

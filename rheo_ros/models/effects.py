@@ -132,6 +132,19 @@ def register_effect(cls: E) -> E:
     return cls
 
 
+def unregister_effect(effect_id: str) -> None:
+    """Forget a registered effect (a plugin unloaded, a test's own effect)."""
+    _REGISTRY.pop(effect_id, None)
+
+
+def catalogue() -> tuple[str, ...]:
+    """The effect ids known now: the package's, those registered with
+    ``@register_effect`` and those of the ``rheo_ros.effects`` entry-point group."""
+    for ep in entry_points(group="rheo_ros.effects"):
+        effect_class(ep.name)
+    return tuple(_REGISTRY)
+
+
 def effect_class(effect_id: str) -> type[Effect]:
     """The effect registered under ``effect_id`` (own catalogue, then entry points)."""
     if effect_id not in _REGISTRY:

@@ -38,7 +38,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.paper import identify_keep, identify_paper, identify_pull
-from rheo_ros.identification.refine import refine
+from rheo_ros.identification.refine import away_from_boundaries, refine
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
@@ -294,8 +294,7 @@ class PhaseIdentifier:
         model = Model(three_element(params["E"], params["c1"], params["c2"]))
         profile = rec.profile()
         p = self.forward.predict(model, params["gamma"], profile, rec.force_t, rec.marker_t[:1])
-        edges = np.array([profile.t_pull_start, profile.t_pull_end, profile.t_keep_end])
-        use = np.abs(rec.force_t[:, None] - edges[None]).min(axis=1) >= 0.05
+        use = away_from_boundaries(rec.force_t, profile)
         err = p.force.sum(axis=1)[use] - rec.force.sum(axis=1)[use]
         return float(np.sqrt(np.mean(err**2)))
 

@@ -111,8 +111,11 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
             else "No missing effect found.")
     if last.adequate:
         return f"{head} Adequate: {final} fits these data.", True
-    if last.undecided:
+    if len(last.undecided) > 1:
         return f"{head} Undecided: the data cannot tell {' and '.join(last.undecided)} apart.", False
+    if last.undecided:
+        return (f"{head} Undecided: the data ask for {last.undecided[0]} but do not pin its parameters "
+                "down.", False)
     return f"{head} Not adequate: {final} still misfits and no effect in the catalogue explains it.", False
 
 
@@ -135,7 +138,7 @@ def _diagnosis_section(result: Analysis) -> str:
     added = ""
     if result.added:
         added = f"<p>Effects added on request before the diagnosis: {html.escape(', '.join(result.added))}.</p>"
-    steps = "".join(f"<li><strong>{html.escape(d.model)}</strong>: {html.escape(d.evidence)}</li>"
+    steps = "".join(f"<li>{html.escape(d.evidence)}</li>"
                     for d in result.diagnoses)
     return f'<section><h2>Diagnosis</h2>{added}<ol class="steps">{steps}</ol></section>'
 
