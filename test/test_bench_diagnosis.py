@@ -9,15 +9,15 @@ import pytest
 from rheo_ros.bench import diagnosis
 
 
-def test_three_quick_bags_give_a_complete_confusion_table():
-    # Bags cycle through the classes: 0 is clean, 1 and 2 carry a hidden effect.
-    result = diagnosis.run(replicates=3, seed=4, quick=True)
+def test_two_quick_bags_give_a_complete_confusion_table():
+    # Bags cycle through the classes: 0 is clean, 1 carries a hidden effect.
+    result = diagnosis.run(replicates=2, seed=4, quick=True)
     bags = result["bags"]
-    assert [b["true"] for b in bags] == ["none", "relaxation_branch", "adhesion"]
+    assert [b["true"] for b in bags] == ["none", "relaxation_branch"]
     assert set(result["confusion"]) == set(diagnosis.CLASSES)
     for counts in result["confusion"].values():
         assert set(counts) == set(diagnosis.COLUMNS)
-    assert sum(sum(c.values()) for c in result["confusion"].values()) == 3
+    assert sum(sum(c.values()) for c in result["confusion"].values()) == 2
     for b in bags:
         assert b["diagnosed"] in diagnosis.COLUMNS, b["message"]
         assert b["diagnosed"] != "failed", b["message"]
@@ -26,7 +26,6 @@ def test_three_quick_bags_give_a_complete_confusion_table():
         assert diagnosis.QUICK_KEEP[0] <= b["params"]["stage.keep_time"] <= diagnosis.QUICK_KEEP[1]
     assert bags[0]["size"] == 0.0 and bags[0]["effect"] == {}
     assert bags[1]["size"] > 0 and set(bags[1]["effect"]) == {"stiffness", "viscosity"}
-    assert set(bags[2]["effect"]) == {"fraction", "time"}
     assert result["clean_bags"] == 1
     assert 0 <= result["false_claims_on_clean"] <= 1
     assert result["seconds_median"] <= result["seconds_max"]

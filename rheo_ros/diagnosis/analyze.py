@@ -20,11 +20,11 @@ from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, Progress, add_effec
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
-from rheo_ros.identification.paper import identify_paper
+from rheo_ros.identification.paper import identify_keep, identify_paper
 from rheo_ros.io.bag import read_bag
 from rheo_ros.models.effects import effect_class
 from rheo_ros.params import Setup, check_params, load_params
-from rheo_ros.record import Record
+from rheo_ros.record import Record, RecordError
 
 BASE_PARAMS = ("E", "c1", "c2", "gamma")
 
@@ -154,7 +154,15 @@ def analyze(
     say("closed form (eq. 6, 7, 10 / 14-17)")
     closed = identify_paper(record, forward=forward)
     say("fitting three_element over the whole record")
-    base = polish(record, forward, fit_model(record, forward, (), closed.params, noise), noise)
+    # Two starts: the paper's final-displacement solution, and eq. 6, 7, 10 on pull and
+    # keep alone, which an effect after release (adhesion) cannot corrupt.
+    starts = [closed.params]
+    try:
+        starts.append(identify_keep(record, forward=forward).params)
+    except RecordError:
+        pass
+    base = polish(record, forward, min((fit_model(record, forward, (), s, noise) for s in starts),
+                                       key=lambda f: f.cost), noise)
     models = [base]
     for effect_id in effects:
         current = models[-1]

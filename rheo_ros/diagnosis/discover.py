@@ -139,8 +139,8 @@ class Candidate:
             it shows in, without and with it (in standard deviations of that chi-square).
         explained: the share of that excess it removes.
         significant: it passes the BIC and signature tests (module docstring).
-        determined: the data bound each of its parameters (finite std; a parameter run
-            to the edge of its search means the effect vanished or degenerated).
+        determined: the data bound each of its parameters (a std below the value; a
+            parameter run to the edge of its search means the effect vanished or degenerated).
     """
 
     effect: str
@@ -291,8 +291,11 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
     explained = (chi_b - chi_a) / (chi_b - n_b) if chi_b > n_b else 0.0
     delta = with_effect.bic - current.bic
     significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED)
-    std = with_effect.estimate.std
-    determined = all(np.isfinite(std[k]) for k in with_effect.estimate.params if k.startswith(effect_id + "."))
+    std, values = with_effect.estimate.std, with_effect.estimate.params
+    # Bound: a finite std below the value itself (within a factor of ~2 at one std); an arm
+    # run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
+    determined = all(np.isfinite(std[k]) and std[k] < abs(values[k]) for k in values
+                     if k.startswith(effect_id + "."))
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
                      float(explained), significant, determined)
 
@@ -455,7 +458,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         else:
             why = "the data do not bound " + ", ".join(
                 k for c in rivals for k, v in c.fit.estimate.std.items()
-                if k.startswith(c.effect + ".") and not np.isfinite(v))
+                if k.startswith(c.effect + ".") and not v < abs(c.fit.estimate.params[k]))
         parts.append(f"The data cannot decide: {listed}; {why}. To decide, record "
                      + "; or ".join(effect_class(c.effect).resolving_experiment for c in rivals) + ".")
     else:
