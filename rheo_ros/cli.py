@@ -163,7 +163,7 @@ def _demo(args: argparse.Namespace) -> int:
     from rheo_ros.demo import run_demo
 
     effects = None if args.effect is None else [e for e in args.effect if e != "none"]
-    return run_demo(args.params_file, args.timeout, effects, report=not args.no_report)
+    return run_demo(args.params_file, args.timeout, effects, report=args.report)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -250,10 +250,12 @@ def build_parser() -> argparse.ArgumentParser:
     dm = sub.add_parser("demo", help="stage, simulator, segmenter and estimator as separate processes over DDS: "
                                      "each estimate as it arrives, the final one beside the true parameters")
     dm.add_argument("--params-file", metavar="FILE", help="parameters file (default: config/rheo_ros.yaml values)")
-    dm.add_argument("--timeout", type=float, default=300.0, metavar="S", help="give up after S seconds (default 300)")
+    dm.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S seconds (default 600)")
     dm.add_argument("--effect", action="append", metavar="ID",
-                    help="hidden effect in the simulator (repeatable; default relaxation_branch; 'none' for a clean run)")
-    dm.add_argument("--no-report", action="store_true", help="do not record the run nor write the HTML report")
+                    help="hidden effect in the simulator (repeatable; default: the parameters file's, none); with "
+                         "one the misspecified fits take minutes: give --timeout 1200")
+    dm.add_argument("--report", action="store_true",
+                    help="also record the run and write the HTML report of rheo analyze on it (slower)")
     dm.set_defaults(func=_demo)
     return parser
 
