@@ -39,6 +39,14 @@ class DeadBand:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""
         return np.asarray(force) >= self.threshold(force_std)
 
+    def reading(self, force: np.ndarray) -> np.ndarray:
+        """What the segments read of noise-free forces (T, nodes) in N, to first order:
+        the force, or zero below the dead band (cells at the threshold) and for tension.
+        A model compared with readings goes through it first: where the specimen has let
+        go, a force sinking below the dead band reads zero, not its small true value."""
+        force = np.asarray(force)
+        return np.where(force >= self.force, force, 0.0)
+
 
 @dataclass(frozen=True)
 class TactileArray:

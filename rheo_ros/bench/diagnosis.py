@@ -26,13 +26,14 @@ computed with the identification's forward model (``QuasiStaticFE.predict``) and
 true parameters, with and without the effect, not with a second simulator run: the
 simulator's noise-free run costs about as much as the analysis (measured: 20-40 s of a
 bag's 40-80 s), while ``predict`` takes 0.04 s and gives the simulator's size within
-0.1 % (checked on one bag of each effect). ``size_readable`` is the same with each
-segment's force clipped at zero, since the array reads no tension (a drift below zero
-before contact is invisible to it).
+0.1 % (checked on one bag of each effect). ``size_live`` is the same with each
+segment's noise-free force through the array's dead band (below ``tactile.threshold``
+per cell it reads zero, and it reads no tension): an adhesion of a few percent, or a
+drift below zero before contact, can be large by ``size`` and still unreadable.
 
-The **detection threshold** is the smallest effect size ``s`` such that at least 98 %
-of the bags with an effect of size >= ``s`` are diagnosed correctly (undecided and
-failed count as wrong).
+The **detection threshold** is the smallest readable effect size ``s`` (``size_live``)
+such that at least 98 % of the bags with an effect of that size or more are diagnosed
+correctly (undecided and failed count as wrong).
 """
 
 from __future__ import annotations
@@ -111,10 +112,10 @@ def draw_bag(rng: np.random.Generator, index: int, quick: bool = False) -> tuple
 def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray) -> dict[str, float]:
     """The hidden effects' size at the force readings ``force_t``: the RMS of their change
     of the noise-free total bottom force (the forward model with the true parameters)
-    over the total force's noise std; ``size_readable``: the same with each segment's
-    force clipped at zero (the array reads no tension)."""
+    over the total force's noise std; ``size_live``: the same with each segment's
+    force through the dead band (zero below ``tactile.threshold`` per cell)."""
     if not setup.effect_ids:
-        return {"size": 0.0, "size_readable": 0.0}
+        return {"size": 0.0, "size_live": 0.0}
     forward, profile, gamma = setup.forward_model(), setup.profile, setup.gamma
     model = setup.model()
     plain = replace(model, effects=())
@@ -123,8 +124,9 @@ def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray) -> dict
     tactile = setup.tactile
     noise_std = np.sqrt(tactile.rows * tactile.cols) * tactile.noise * tactile.cell_area
     out = {}
-    for key, clip in (("size", False), ("size_readable", True)):
-        a, b = (np.maximum(with_effect, 0.0), np.maximum(without, 0.0)) if clip else (with_effect, without)
+    for key, clip in (("size", False), ("size_live", True)):
+        a, b = ((tactile.dead_band.reading(f) for f in (with_effect, without)) if clip
+                else (with_effect, without))
         diff = a.sum(axis=1) - b.sum(axis=1)
         out[key] = float(np.sqrt(np.mean(diff**2)) / noise_std)
     return out
@@ -156,7 +158,7 @@ def run_bag(index: int, true: str, params: dict[str, Any], seed: int, directory:
         "index": index, "true": true, "seed": seed, "geometry": params["geometry"],
         "params": {k: v for k, v in params.items() if k != "simulator.effects"},
         "effect": {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith("effects.")},
-        "size": 0.0, "size_readable": 0.0, "diagnosed": "failed", "missing_effects": [], "undecided": [],
+        "size": 0.0, "size_live": 0.0, "diagnosed": "failed", "missing_effects": [], "undecided": [],
         "evidence": "", "simulate_seconds": 0.0, "seconds": 0.0, "message": "",
     }
     out = directory / f"bag{index:04d}"
@@ -192,14 +194,15 @@ def confusion(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
 
 
 def detection_threshold(rows: list[dict[str, Any]], target: float = TARGET) -> dict[str, Any]:
-    """The smallest effect size above which at least ``target`` of the bags with an
-    effect are diagnosed correctly; None when even the largest alone is wrong."""
-    effect = sorted((r for r in rows if r["true"] != "none"), key=lambda r: r["size"])
+    """The smallest readable effect size (``size_live``) above which at least ``target``
+    of the bags with an effect are diagnosed correctly; None when even the largest alone
+    is wrong."""
+    effect = sorted((r for r in rows if r["true"] != "none"), key=lambda r: r["size_live"])
     correct = np.array([r["diagnosed"] == r["true"] for r in effect], dtype=float)
     for k in range(len(effect)):
         above = correct[k:]
         if above.mean() >= target:
-            return {"threshold": effect[k]["size"], "bags_above": int(above.size),
+            return {"threshold": effect[k]["size_live"], "bags_above": int(above.size),
                     "correct_above": int(above.sum()), "accuracy_above": float(above.mean()),
                     "bags_below": k, "correct_below": int(correct[:k].sum())}
     return {"threshold": None, "bags_above": 0, "correct_above": 0, "accuracy_above": None,
@@ -218,7 +221,8 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False) -> dict[str, 
             true, params, bag_seed = draw_bag(rng, i, quick)
             row = run_bag(i, true, params, bag_seed, Path(tmp))
             rows.append(row)
-            print(f"bag {i} ({i + 1}/{replicates}): true {true}, size {row['size']:.3g}, diagnosed {row['diagnosed']}, "
+            print(f"bag {i} ({i + 1}/{replicates}): true {true}, size {row['size']:.3g} (readable "
+                  f"{row['size_live']:.3g}), diagnosed {row['diagnosed']}, "
                   f"{row['simulate_seconds']:.1f} + {row['seconds']:.1f} s"
                   + (f" ({row['message']})" if row["message"] else ""), file=sys.stderr, flush=True)
     seconds = [r["seconds"] for r in rows if r["diagnosed"] != "failed"]
@@ -259,7 +263,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"detection threshold: none (no effect size above which {100 * result['target']:.0f} % "
                      "are diagnosed correctly)")
     else:
-        lines.append(f"detection threshold: effect size {result['threshold']:.3g} x the total-force noise "
+        lines.append(f"detection threshold: readable effect size {result['threshold']:.3g} x the total-force noise "
                      f"({100 * result['target']:.0f} % correct above it)")
         lines.append(f"  accuracy above it: {result['correct_above']}/{result['bags_above']} "
                      f"({100 * result['accuracy_above']:.1f} %); below it: "
@@ -276,10 +280,10 @@ def format_table(result: dict[str, Any]) -> str:
     wrong = [r for r in result["bags"] if r["diagnosed"] != r["true"]]
     if wrong:
         lines.append("misdiagnosed:")
-        for r in sorted(wrong, key=lambda r: -r["size"]):
+        for r in sorted(wrong, key=lambda r: -r["size_live"]):
             effect = ", ".join(f"{k} {v:.3g}" for k, v in r["effect"].items())
             lines.append(f"  bag {r['index']}: {r['true']} ({effect or 'clean'}; {r['geometry']}, keep "
-                         f"{r['params']['stage.keep_time']:.0f} s) size {r['size']:.3g} -> "
+                         f"{r['params']['stage.keep_time']:.0f} s) size {r['size']:.3g}, readable {r['size_live']:.3g} -> "
                          f"{r['diagnosed']}" + (f" [{', '.join(r['undecided'])}]" if r["undecided"] else "")
                          + (f": {r['message']}" if r["message"] else ""))
     return "\n".join(lines)

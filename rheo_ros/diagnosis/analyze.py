@@ -10,7 +10,7 @@ model fitted with its residuals, the verdicts, and the contract's JSON.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +20,7 @@ from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, Progress, add_effec
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
-from rheo_ros.identification.paper import identify_keep, identify_paper
+from rheo_ros.identification.paper import identify_keep, identify_paper, identify_pull
 from rheo_ros.io.bag import read_bag
 from rheo_ros.models.effects import effect_class
 from rheo_ros.params import Setup, check_params, load_params
@@ -43,6 +43,7 @@ class Analysis:
             additions, then each effect the diagnosis added.
         diagnoses: the verdict on each model the loop judged, in order.
         added: the effects the user asked for.
+        warnings: what the analysis went without (a closed form with no solution).
     """
 
     bag: str
@@ -54,6 +55,7 @@ class Analysis:
     models: tuple[ModelFit, ...]
     diagnoses: tuple[Diagnosis, ...]
     added: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def base(self) -> ModelFit:
@@ -98,6 +100,7 @@ class Analysis:
             },
             "models": [self._model_json(m) for m in self.models],
             "diagnosis": diagnosis,
+            "warnings": list(self.warnings),
         }
 
     @staticmethod
@@ -116,6 +119,39 @@ class Analysis:
 
 def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
+
+
+def closed_forms(record: Record, forward: QuasiStaticFE) -> tuple[Estimate, list[dict[str, float]], str]:
+    """The paper's identification to report, the starts of the whole-record fit, and
+    which closed forms had no solution ("" when none failed).
+
+    The final-displacement solution (eq. 6+14, 7, 15-17) is the one reported; the
+    solution of eq. 6, 7, 10 on pull and keep alone is a second start, which an effect
+    after release (adhesion, drift) cannot corrupt. Where the final-displacement
+    solution has none (a drift that reverses the force drop at release), the pull and
+    keep solution is reported in its place, or eq. 6 on the pull alone, with a message
+    that says so.
+
+    Raises:
+        RecordError: no closed form has a solution (each reason named).
+    """
+    solutions: list[Estimate] = []
+    failed: list[str] = []
+    for label, identify in (("eq. 6+14, 7, 15-17 (final displacement)", identify_paper),
+                            ("eq. 6, 7, 10 (pull and keep)", identify_keep), ("eq. 6 (pull)", identify_pull)):
+        try:
+            solutions.append(identify(record, forward=forward))
+        except RecordError as exc:
+            failed.append(f"{label}: {exc}")
+        if len(solutions) == 2:
+            break
+    if not solutions:
+        raise RecordError(f"{record.source}: no closed form has a solution ({'; '.join(failed)})")
+    closed, note = solutions[0], ""
+    if failed:
+        note = f"{closed.method} reported in place of: {'; '.join(failed)}"
+        closed = replace(closed, message=f"{note}; {closed.message}" if closed.message else note)
+    return closed, [s.params for s in solutions], note
 
 
 def analyze(
@@ -152,15 +188,11 @@ def analyze(
     forward = setup.forward_model()
     noise = sensor_noise(record)
     say("closed form (eq. 6, 7, 10 / 14-17)")
-    closed = identify_paper(record, forward=forward)
+    closed, starts, failed = closed_forms(record, forward)
+    warnings = (f"closed form: {failed}",) if failed else ()
+    for warning in warnings:
+        say(f"warning: {warning}")
     say("fitting three_element over the whole record")
-    # Two starts: the paper's final-displacement solution, and eq. 6, 7, 10 on pull and
-    # keep alone, which an effect after release (adhesion) cannot corrupt.
-    starts = [closed.params]
-    try:
-        starts.append(identify_keep(record, forward=forward).params)
-    except RecordError:
-        pass
     base = polish(record, forward, min((fit_model(record, forward, (), s, noise) for s in starts),
                                        key=lambda f: f.cost), noise)
     models = [base]
@@ -173,4 +205,5 @@ def analyze(
         found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say,
                                      workers=workers)
         models += found[1:]
-    return Analysis(str(bag), record, setup, forward, noise, closed, tuple(models), tuple(diagnoses), tuple(effects))
+    return Analysis(str(bag), record, setup, forward, noise, closed, tuple(models), tuple(diagnoses), tuple(effects),
+                    warnings)

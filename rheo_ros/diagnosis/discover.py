@@ -63,7 +63,8 @@ class ModelFit:
         comparison: its residual statistics per phase and signal.
         cost: chi-square of the fit against the sensor noise; samples: readings (n).
         rmse_force: RMS error of the total bottom force over the record (N), every
-            reading but those at a phase boundary (mid-jump).
+            reading but those at a phase boundary (mid-jump), the model read through the
+            tactile dead band (``DeadBand.reading``).
         rmse_by_phase: the same per phase (pull, keep, release).
         prediction_total: the model's total bottom force at the record's force times (N).
     """
@@ -225,8 +226,9 @@ def _assess(record: Record, forward: QuasiStaticFE, model: Model, est: Estimate,
     p = forward.predict(model, est.params["gamma"], record.profile(), record.force_t - delays[0],
                         record.marker_t - delays[1])
     total = p.force.sum(axis=1)
+    read = record.dead_band.reading(p.force).sum(axis=1) if record.dead_band is not None else total
     away = away_from_boundaries(record.force_t, record.profile())
-    err = (total - record.force.sum(axis=1))[away]
+    err = (read - record.force.sum(axis=1))[away]
     which = phase_of(record.force_t[away], record.profile())
     by_phase = {name: float(np.sqrt(np.mean(err[which == PHASES.index(name)] ** 2)))
                 for name in REPORTED_PHASES if np.any(which == PHASES.index(name))}

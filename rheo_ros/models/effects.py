@@ -197,7 +197,9 @@ class SensorDrift(Effect):
     """Tactile offset (N per node) and linear drift (N/s per node) from t = 0."""
 
     id: ClassVar[str] = "sensor_drift"
-    shows_in: ClassVar[tuple[str, ...]] = ("before", "release")
+    # Every live reading carries it; before contact and after release it is alone, but an
+    # offset below the dead band shows only where the specimen presses (in pull and keep).
+    shows_in: ClassVar[tuple[str, ...]] = ("before", "pull", "keep", "release")
     signed: ClassVar[tuple[str, ...]] = ("offset", "rate")
     resolving_experiment: ClassVar[str] = "a longer record before contact and after release"
     offset: float
