@@ -100,8 +100,8 @@ def run_demo(params_file: str | None = None, timeout: float = 600.0, effects: li
         effects: the simulator's hidden effects (None: the parameters file's; ``[]``:
             none). Measured on this 2-core machine: clean, the final estimate after 76 s
             wall and the diagnosis after 121 s; a hidden relaxation branch with the
-            report, the final estimate after 102 s, the diagnosis after 255 s, the
-            report after 353 s.
+            report, the final estimate after 113 s, the diagnosis after 237 s, the
+            report after 273 s.
         report: record the run and write the HTML report of ``rheo analyze`` on it.
     """
     params = load_params(params_file)
