@@ -164,7 +164,7 @@ def format_analysis(report: dict[str, Any]) -> str:
 def _demo(args: argparse.Namespace) -> int:
     from rheo_ros.demo import run_demo
 
-    effects = [e for e in (args.effect or ["relaxation_branch"]) if e != "none"]
+    effects = None if args.effect is None else [e for e in args.effect if e != "none"]
     return run_demo(args.params_file, args.timeout, effects, report=args.report)
 
 
@@ -254,8 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     dm.add_argument("--params-file", metavar="FILE", help="parameters file (default: config/rheo_ros.yaml values)")
     dm.add_argument("--timeout", type=float, default=600.0, metavar="S", help="give up after S seconds (default 600)")
     dm.add_argument("--effect", action="append", metavar="ID",
-                    help="effect hidden in the simulator, not told to the estimator (repeatable; default: "
-                         "relaxation_branch; 'none': a clean run)")
+                    help="effect hidden in the simulator, not told to the estimator (repeatable; default: the "
+                         "parameters file's, else relaxation_branch; 'none': a clean run)")
     dm.add_argument("--report", action=argparse.BooleanOptionalAction, default=True,
                     help="record the run and write the HTML report of rheo analyze on it (default: on)")
     dm.set_defaults(func=_demo)
