@@ -51,11 +51,13 @@ class Graph:
                                             stderr=subprocess.STDOUT)
         return self.procs[name]
 
-    def spin_until(self, done, timeout: float, what: str) -> None:
+    def spin_until(self, done, timeout: float, what) -> None:
+        """Spin until done(); else fail with what (a text, or a function giving one) and the logs."""
         deadline = time.monotonic() + timeout
         while not done():
-            assert time.monotonic() < deadline, f"{what} within {timeout} s; logs: " + " | ".join(
-                f"{p.name}: {p.read_text()[-1500:]}" for p in self.tmp.glob("*.log"))
+            if time.monotonic() > deadline:
+                logs = " | ".join(f"{p.name}: {p.read_text()[-1500:]}" for p in self.tmp.glob("*.log"))
+                pytest.fail(f"{what() if callable(what) else what} within {timeout} s; logs: {logs}")
             self.executor.spin_once(timeout_sec=0.05)
 
     def close(self) -> None:
@@ -100,10 +102,13 @@ def replay(short_bag, tmp_path_factory):
                                    "--wait-for-subscribers", "2"], env=g.env, capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
-            g.spin_until(lambda: len(estimates) >= 6 and len(phases) >= 4, 60, "6 estimates and 4 phases")
+            g.spin_until(lambda: len(estimates) >= 6 and len(phases) >= 4, 60,
+                         lambda: f"6 estimates and 4 phases (got {len(estimates)} and {len(phases)})")
             late = []
             late_node = rclpy.create_node("late", context=g.context)
-            late_node.create_subscription(Estimate, "/rheo/estimate", late.append, LATCHED)
+            late_node.create_subscription(Estimate, "/rheo/estimate", late.append,
+                                          QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                                     durability=DurabilityPolicy.TRANSIENT_LOCAL))
             g.executor.add_node(late_node)
             g.spin_until(lambda: late, 10, "the last estimate for a late subscriber")
             g.spin_until(lambda: verdicts, 120, "the diagnosis after release")

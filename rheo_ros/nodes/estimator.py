@@ -73,8 +73,11 @@ from rheo_ros.record import RecordError
 # (a KEEP_ALL writer: rheo play) instead of having its queue overwritten; with a
 # KEEP_LAST writer (a live driver) the depth below is what the writer keeps.
 SENSOR_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-# The last estimate stays with the publisher for subscribers that join later.
-LATCHED_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The last updates stay with the publisher for subscribers that join later (one that
+# asks for depth 1 gets the last). Deeper than one push's burst of updates: a
+# reliable KEEP_LAST writer drops a sample a slow reader has not acknowledged when the
+# next one comes, and discovery may finish after the first updates.
+LATCHED_QOS = QoSProfile(depth=16, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 PREDICTION_RATE = 10.0   # Hz of stamps, per predicted topic
 TOPICS = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
 
