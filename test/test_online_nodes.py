@@ -85,6 +85,9 @@ def short_bag(tmp_path_factory):
 @pytest.fixture(scope="module")
 def replay(short_bag, tmp_path_factory):
     """A bag replayed over DDS into the segmenter and estimator nodes, twice."""
+    diagnoses = []
+    offline = estimate_bag(str(short_bag / "bag"), diagnoses=diagnoses)
+    n_updates = len(offline[1])
     runs = []
     for k in range(2):
         tmp = tmp_path_factory.mktemp(f"replay{k}")
@@ -102,8 +105,9 @@ def replay(short_bag, tmp_path_factory):
                                    "--wait-for-subscribers", "2"], env=g.env, capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
-            g.spin_until(lambda: len(estimates) >= 6 and len(phases) >= 4, 60,
-                         lambda: f"6 estimates and 4 phases (got {len(estimates)} and {len(phases)})")
+            # Every update first: a late subscriber that joined before the last one would get two.
+            g.spin_until(lambda: len(estimates) >= n_updates and len(phases) >= 4, 60,
+                         lambda: f"{n_updates} estimates and 4 phases (got {len(estimates)} and {len(phases)})")
             late = []
             late_node = rclpy.create_node("late", context=g.context)
             late_node.create_subscription(Estimate, "/rheo/estimate", late.append,
@@ -118,8 +122,6 @@ def replay(short_bag, tmp_path_factory):
                          "estimator_log": (tmp / "estimator.log").read_text()})
         finally:
             g.close()
-    diagnoses = []
-    offline = estimate_bag(str(short_bag / "bag"), diagnoses=diagnoses)
     return runs, offline + (diagnoses,)
 
 
@@ -161,8 +163,10 @@ def test_segmenter_node_publishes_each_phase_as_the_core_finds_it(replay):
 def test_a_late_subscriber_gets_the_last_estimate(replay):
     runs, (_, updates, _, _) = replay
     for run in runs:
-        assert len(run["late"]) == 1
-        last = read_estimate(run["late"][0])
+        # DDS hands a depth-1 reader the writer's history as it comes: one, or a few
+        # of the last 16 if the reader took one before the next arrived; the last is the latest.
+        assert 1 <= len(run["late"]) <= 16
+        last = read_estimate(run["late"][-1])
         assert (last["phase"], last["method"]) == (updates[-1].phase, updates[-1].method)
 
 
