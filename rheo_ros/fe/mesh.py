@@ -63,6 +63,11 @@ def lame_per_unit_modulus(gamma: float) -> tuple[float, float]:
     return gamma / (1.0 - gamma**2), 1.0 / (2.0 * (1.0 + gamma))
 
 
+def lame_slope_per_unit_modulus(gamma: float) -> tuple[float, float]:
+    """d/dgamma of :func:`lame_per_unit_modulus`."""
+    return (1.0 + gamma**2) / (1.0 - gamma**2) ** 2, -0.5 / (1.0 + gamma) ** 2
+
+
 FRICTIONLESS = Boundary("frictionless", "frictionless")
 
 
@@ -191,6 +196,12 @@ class Mesh:
         sparse."""
         K_lambda, K_mu = self.stiffness_parts
         lam, mu = lame_per_unit_modulus(float(gamma))
+        return (lam * K_lambda + mu * K_mu).tocsr()
+
+    def stiffness_slope(self, gamma: float) -> sparse.csr_matrix:
+        """d/dgamma of :meth:`stiffness`, sparse."""
+        K_lambda, K_mu = self.stiffness_parts
+        lam, mu = lame_slope_per_unit_modulus(float(gamma))
         return (lam * K_lambda + mu * K_mu).tocsr()
 
     def lumped_mass(self, density: float) -> np.ndarray:

@@ -81,7 +81,7 @@ class StateSpace:
     @classmethod
     def of(cls, element: Element) -> StateSpace:
         q = element.modulus()
-        num, den = q.num, np.polymul(q.den, [1.0, 0.0])
+        num, den = q.num, np.append(q.den, 0.0)   # times s
         while num.size > 1 and num[-1] == 0.0 and den[-1] == 0.0:
             num, den = num[:-1], den[:-1]
         if num.size > den.size:
@@ -90,12 +90,13 @@ class StateSpace:
         return cls(A, B[:, 0], C[0], float(D[0, 0]))
 
 
-def _propagators(A: np.ndarray, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``exp(A tau)`` and ``int_0^tau exp(A s) ds`` for each tau: arrays (T, n, n).
+def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``exp(A tau) x`` and ``int_0^tau exp(A s) ds b`` for each tau: arrays (T, n).
 
     Spring-dashpot networks have real, simple poles, so the eigen-decomposition is
-    exact and vectorises over tau; a defective or ill-conditioned matrix (repeated
-    arms) falls back to the augmented matrix exponential.
+    exact and vectorises over tau (applied to the vectors, never forming a matrix per
+    tau); a defective or ill-conditioned matrix (repeated arms) falls back to the
+    augmented matrix exponential.
     """
     n = A.shape[0]
     lam, V = np.linalg.eig(A)
@@ -103,17 +104,14 @@ def _propagators(A: np.ndarray, taus: np.ndarray) -> tuple[np.ndarray, np.ndarra
         lam, V = lam.real, V.real
         Vinv = np.linalg.inv(V)
         lt = np.outer(taus, lam)
-        expo = np.exp(lt)
         small = np.abs(lt) < 1e-8
         with np.errstate(divide="ignore", invalid="ignore"):
             phi = np.where(small, taus[:, None] * (1 + lt / 2), np.expm1(lt) / lam)
-        E = np.einsum("ij,tj,jk->tik", V, expo, Vinv)
-        P = np.einsum("ij,tj,jk->tik", V, phi, Vinv)
-        return E, P
+        return (np.exp(lt) * (Vinv @ x)) @ V.T, (phi * (Vinv @ b)) @ V.T
     aug = np.zeros((n * 2, n * 2))
     aug[:n, :n], aug[:n, n:] = A, np.eye(n)
     big = expm(aug[None] * taus[:, None, None])
-    return big[:, :n, :n], big[:, :n, n:]
+    return big[:, :n, :n] @ x, big[:, :n, n:] @ b
 
 
 def respond(element: Element, program: Program, t: np.ndarray) -> Response:
@@ -152,16 +150,15 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
         every = np.concatenate([taus, tau_end])
         if seg.strain_rate is not None:
             rate = seg.strain_rate
-            E, P = _propagators(ss.A, every)
-            xs = E @ x + (P @ ss.B) * rate
+            free, driven = _flows(ss.A, every, x, ss.B)
+            xs = free + driven * rate
             eps_s = eps + rate * every
             stress[mask] = xs[: taus.size] @ ss.C + ss.D * rate
         else:
             Af, gain, jump = _free_dynamics(ss, x)
             x0, eps0 = x + ss.B * jump, eps + jump
-            E, P = _propagators(Af, every)
-            xs = E @ x0
-            eps_s = eps0 + (P @ x0) @ gain
+            xs, integral = _flows(Af, every, x0, x0)
+            eps_s = eps0 + integral @ gain
             stress[mask] = 0.0
         strain[mask] = eps_s[: taus.size]
         if tau_end.size:
@@ -178,8 +175,8 @@ def _first_zero_stress(ss: StateSpace, x: np.ndarray, rate: float, duration: flo
     on the exact expression (a retracting drive lowers the stress monotonically for
     spring-dashpot networks; the grid guards against a shallow start)."""
     def stress(taus: np.ndarray) -> np.ndarray:
-        E, P = _propagators(ss.A, taus)
-        return (E @ x + (P @ ss.B) * rate) @ ss.C + ss.D * rate
+        free, driven = _flows(ss.A, taus, x, ss.B)
+        return (free + driven * rate) @ ss.C + ss.D * rate
 
     grid = np.linspace(0.0, duration, 65)
     values = stress(grid)
