@@ -142,6 +142,17 @@ def test_shape_between_solved_ratios_is_exact_and_does_not_depend_on_what_came_b
     np.testing.assert_allclose(slope.bottom_force, central, rtol=1e-6)
 
 
+def test_tabulated_shape_is_within_1e_5_of_the_solved_one():
+    """Figures and live overlays take the shape from the Chebyshev table (no solve)."""
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("bonded", "bonded"))
+    fe = QuasiStaticFE(mesh, 3, np.linspace(0.0, 0.08, 6))
+    for gamma in (-0.5, 0.0, 0.3123, 0.49):
+        exact, table = fe.shape(gamma), fe.tabulated_shape(gamma)
+        np.testing.assert_allclose(table.bottom_force, exact.bottom_force, rtol=1e-5)
+        np.testing.assert_allclose(table.displacement, exact.displacement, rtol=0,
+                                   atol=1e-5 * np.abs(exact.displacement).max())
+
+
 def test_bonded_faces_restrain_the_lateral_expansion():
     """Bonded top and bottom: the block bulges at mid-height only and is stiffer than
     the frictionless one (the faces cannot expand); the segments are symmetric."""

@@ -98,6 +98,7 @@ class QuasiStaticFE:
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
         self._shapes: dict[float, tuple[ElasticShape, ElasticShape]] = {}   # gamma: (shape, d shape/d gamma)
         self._table: np.ndarray | None = None
+        self._table_slope: np.ndarray | None = None
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -153,7 +154,27 @@ class QuasiStaticFE:
         phi, force = self._shape_table(float(gamma))
         return force * (np.ravel(u) @ phi) / (phi @ phi)
 
-    def _shape_table(self, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+    def tabulated_shape(self, gamma: float) -> ElasticShape:
+        """The elastic shape from the implied-force table (within 1e-5 relative, no
+        factorisation): for figures and live overlays at a new ratio each update, not for
+        fits (an exact solve where the table does not reach)."""
+        lo, hi = self.TABLE_GAMMA
+        if not lo <= gamma <= hi:
+            return self.shape(gamma)
+        phi, force = self._shape_table(float(gamma))
+        return ElasticShape(phi.reshape(-1, 2), force)
+
+    def implied_force_slope(self, u: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`implied_force` and its derivative in gamma (the table's own derivative:
+        a closed form's solver then needs no finite differences)."""
+        phi, force = self._shape_table(float(gamma))
+        dphi, dforce = self._shape_table(float(gamma), derivative=True)
+        u = np.ravel(u)
+        s, p = u @ phi, phi @ phi
+        ds, dp = u @ dphi, 2.0 * (phi @ dphi)
+        return force * s / p, dforce * s / p + force * (ds * p - s * dp) / p**2
+
+    def _shape_table(self, gamma: float, derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.TABLE_GAMMA
         if not lo <= gamma <= hi:
             raise ValueError(f"Poisson ratio {gamma} outside the table's [{lo}, {hi}]")
@@ -163,15 +184,18 @@ class QuasiStaticFE:
             shapes = [self._solve_shape(lo + (xi + 1) / 2 * (hi - lo))[0] for xi in x]
             values = np.array([np.concatenate([s.displacement.ravel(), s.bottom_force]) for s in shapes])
             self._table = chebyshev.chebfit(x, values, n - 1)
-        row = chebyshev.chebval(2 * (gamma - lo) / (hi - lo) - 1, self._table)
+            self._table_slope = chebyshev.chebder(self._table) * (2 / (hi - lo))
+        row = chebyshev.chebval(2 * (gamma - lo) / (hi - lo) - 1, self._table_slope if derivative else self._table)
         k = self.mesh.nodes.size
         return row[:k], row[k:]
 
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,
-        force_t: np.ndarray, marker_t: np.ndarray,
+        force_t: np.ndarray, marker_t: np.ndarray, tabulated: bool = False,
     ) -> Prediction:
-        shape = self.shape(gamma)
+        """Segment forces at ``force_t`` and marker displacements at ``marker_t``;
+        ``tabulated``: the shape from the table (:meth:`tabulated_shape`)."""
+        shape = self.tabulated_shape(gamma) if tabulated else self.shape(gamma)
         # The last time is the end of the hold: adhesion keeps a share of the force then.
         t_let_go = np.nextafter(profile.t_keep_end, -np.inf)
         t = np.concatenate([force_t, marker_t, [t_let_go]])

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from rheo_ros.experiment import StageProfile
-from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh, lame_per_unit_modulus
+from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh, lame_per_unit_modulus, lame_slope_per_unit_modulus
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
@@ -416,6 +416,14 @@ def solve_node_equations(
         lam, mu = lame_per_unit_modulus(gamma)
         return lam * g_lambda + mu * g_mu
 
+    def g_slope(gamma: float) -> tuple[np.ndarray, np.ndarray]:
+        """``g`` and its derivative in gamma."""
+        if forward is not None:
+            g, dg = forward.implied_force_slope(u, gamma)
+            return g[nodes][usable], dg[nodes][usable]
+        (lam, mu), (dlam, dmu) = lame_per_unit_modulus(gamma), lame_slope_per_unit_modulus(gamma)
+        return lam * g_lambda + mu * g_mu, dlam * g_lambda + dmu * g_mu
+
     def unpack(x: np.ndarray) -> tuple[float, float, float]:
         """c2, eta, gamma from the search vector (gamma searched only on plane_fe)."""
         return np.exp(x[0]), np.exp(x[1]), x[2] if block_gamma is None else block_gamma
@@ -424,6 +432,16 @@ def solve_node_equations(
         c2, eta, gamma = unpack(x)
         g = g_of(gamma)
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        # Analytic: a closed form runs online after each phase, within its latency budget.
+        c2, eta, gamma = unpack(x)
+        g, dg = g_slope(gamma)
+        lag = eta * F_end / (r * c2)
+        columns = [np.concatenate([c2 * g / sa, -lag / sb]), np.concatenate([np.zeros_like(g), (eta * g + lag) / sb])]
+        if search:
+            columns.append(np.concatenate([c2 * dg / sa, eta * dg / sb]))
+        return np.column_stack(columns)
 
     usable = np.ones(nodes.size, bool)
     g0 = g_of(0.3 if block_gamma is None else block_gamma)
@@ -442,7 +460,7 @@ def solve_node_equations(
     g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
     lo = [-np.inf, -np.inf] + ([g_lo] if search else [])
     hi = [np.inf, np.inf] + ([g_hi] if search else [])
-    sol = least_squares(residuals, x0, bounds=(lo, hi), xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    sol = least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), xtol=1e-10, ftol=1e-10, gtol=1e-10)
     c2, eta, gamma = (float(v) for v in unpack(sol.x))
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")

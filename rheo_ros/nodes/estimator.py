@@ -109,7 +109,11 @@ class EstimatorNode(Node):
         self.open_params: dict[str, str] = {}
         self.predicted_at: dict[str, float] = {}
         self.updates = 0
-        self.latency = {"closed_form": deque(maxlen=1000), "whole_record": deque(maxlen=1000)}
+        # Latency from the message that completed a phase to the update's publication, and
+        # of that the closed form's round trip through its worker process (the rest waits
+        # on the lanes' queues and the executor).
+        self.latency = {"closed_form": deque(maxlen=1000), "whole_record": deque(maxlen=1000),
+                        "closed_form worker": deque(maxlen=1000)}
         self.started = time.monotonic()
         # Lanes: a thread each, handing the work to its worker process and the result back.
         self.pools = {"closed_form": self._start_pool("closed_form")}
@@ -120,7 +124,7 @@ class EstimatorNode(Node):
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
-        self.outbox: queue.Queue[tuple[Update | OnlineDiagnosis, float] | tuple[str, str]] = queue.Queue()
+        self.outbox: queue.Queue[tuple[Update | OnlineDiagnosis, float, float | None] | tuple[str, str]] = queue.Queue()
         self.results_ready = self.create_guard_condition(self.publish_results)
         self.lanes = [threading.Thread(target=self.closed_form_lane, name="estimator-closed-forms", daemon=True),
                       threading.Thread(target=self.fit_lane, name="estimator-fits", daemon=True)]
@@ -200,8 +204,8 @@ class EstimatorNode(Node):
             self.pools[lane] = self._start_pool(lane)
             raise RecordError(f"the {lane.replace('_', ' ')} worker process died; it was restarted") from None
 
-    def _hand_out(self, update: Update | OnlineDiagnosis, arrival: float) -> None:
-        self.outbox.put((update, arrival))
+    def _hand_out(self, update: Update | OnlineDiagnosis, arrival: float, worker: float | None = None) -> None:
+        self.outbox.put((update, arrival, worker))
         self._wake()
 
     def _wake(self) -> None:
@@ -226,13 +230,14 @@ class EstimatorNode(Node):
     def closed_form_lane(self) -> None:
         while (item := self.closed_jobs.get()) is not None:
             job, arrival = item
+            start = time.perf_counter()
             try:
                 update, closed = self._in_worker("closed_form", closed_form_in_worker, job)
             except Exception as exc:
                 self._failed(job, exc)
                 continue
             if update is not None:
-                self._hand_out(update, arrival)
+                self._hand_out(update, arrival, time.perf_counter() - start)
                 self.last_error = ""
             if "fit" in self.pools:
                 self.fit_jobs.put((job, closed, arrival))
@@ -269,7 +274,9 @@ class EstimatorNode(Node):
                 else:
                     self.get_logger().error(text)
                 continue
-            update, arrival = item
+            update, arrival, worker = item
+            if worker is not None:
+                self.latency["closed_form worker"].append(worker)
             if isinstance(update, OnlineDiagnosis):
                 self.publish_verdict(update)
                 continue
