@@ -32,6 +32,7 @@ def test_two_quick_bags_give_a_complete_confusion_table():
     table = diagnosis.format_table(result)
     assert "detection threshold" in table
     assert "false claims on clean bags" in table
+    assert set(result["per_effect"]) == {"relaxation_branch"}
 
 
 def _rows(pairs):
@@ -48,6 +49,11 @@ def test_the_threshold_is_the_smallest_size_above_which_98_percent_are_right():
     many = _rows([("adhesion", "adhesion", float(s)) for s in range(10, 70)] + [("adhesion", "none", 20.5)])
     assert diagnosis.detection_threshold(many)["threshold"] == 10.0
     assert diagnosis.detection_threshold(_rows([("adhesion", "none", 5.0)]))["threshold"] is None
+    # Per effect: adhesion alone is right from 1.0 up, drift from 3.0; absent effects are left out.
+    per = diagnosis.per_effect_thresholds(rows)
+    assert set(per) == {"adhesion", "sensor_drift"}
+    assert per["adhesion"]["threshold"] == 1.0 and per["adhesion"]["bags_below"] == 1
+    assert per["sensor_drift"]["threshold"] == 3.0 and per["sensor_drift"]["correct_above"] == 1
     table = diagnosis.confusion(rows)
     assert table["adhesion"]["adhesion"] == 2 and table["none"]["adhesion"] == 1
     assert sum(sum(c.values()) for c in table.values()) == len(rows)

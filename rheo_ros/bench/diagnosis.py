@@ -209,6 +209,13 @@ def detection_threshold(rows: list[dict[str, Any]], target: float = TARGET) -> d
             "bags_below": len(effect), "correct_below": int(correct.sum())}
 
 
+def per_effect_thresholds(rows: list[dict[str, Any]], target: float = TARGET) -> dict[str, dict[str, Any]]:
+    """:func:`detection_threshold` over each hidden effect's bags alone (the effects differ
+    in how much of their size the diagnosis can see)."""
+    return {e: detection_threshold([r for r in rows if r["true"] == e], target)
+            for e in EFFECTS if any(r["true"] == e for r in rows)}
+
+
 def run(replicates: int = 100, seed: int = 0, quick: bool = False) -> dict[str, Any]:
     """Generate, analyse and score ``replicates`` bags (module docstring).
 
@@ -231,6 +238,7 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False) -> dict[str, 
         "replicates": replicates, "seed": seed, "quick": quick, "target": TARGET,
         "confusion": confusion(rows),
         **detection_threshold(rows),
+        "per_effect": per_effect_thresholds(rows),
         "clean_bags": len(clean),
         "false_claims_on_clean": sum(r["diagnosed"] in EFFECTS for r in clean),
         "undecided_on_clean": sum(r["diagnosed"] == "undecided" for r in clean),
@@ -268,6 +276,10 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"  accuracy above it: {result['correct_above']}/{result['bags_above']} "
                      f"({100 * result['accuracy_above']:.1f} %); below it: "
                      f"{result['correct_below']}/{result['bags_below']}")
+    for effect, th in (result.get("per_effect") or per_effect_thresholds(result["bags"], result["target"])).items():
+        at = "none" if th["threshold"] is None else f"{th['threshold']:.3g}"
+        lines.append(f"  {effect:<18} threshold {at:>6}: {th['correct_above']}/{th['bags_above']} correct above, "
+                     f"{th['correct_below']}/{th['bags_below']} below")
     lines.append(f"false claims on clean bags: {result['false_claims_on_clean']}/{result['clean_bags']} "
                  f"(undecided {result['undecided_on_clean']}); failed bags: {result['failed']}")
     if result["extra_effects"]:
