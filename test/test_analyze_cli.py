@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 BAGS = Path(__file__).resolve().parent.parent / "bags"
@@ -69,6 +70,13 @@ def test_a_bag_gives_the_contracts_json(tmp_path):
     assert [p["name"] for p in report["phases"]] == ["pull", "keep", "release"]
     assert set(report["estimate"]) >= {"E", "c1", "c2", "gamma", "std"}
     assert set(report["estimate"]["std"]) == {"E", "c1", "c2", "gamma"}
+    # The closed form's std: the base fit's and its distance from it (a misspecified bag:
+    # the two part, and the std covers the closed form's distance from the efficient fit).
+    base = report["models"][0]
+    for k, s in report["estimate"]["std"].items():
+        gap = report["estimate"][k] - base["params"][k]
+        assert s == pytest.approx(np.hypot(base["std"][k], gap), rel=1e-12)
+        assert s >= abs(gap)
     for m in report["models"]:
         assert set(m) >= {"name", "effects", "params", "rmse_force", "rmse_by_phase", "bic"}
         assert set(m["rmse_by_phase"]) == {"pull", "keep", "release"}

@@ -172,12 +172,14 @@ def _parameters_section(result: Analysis) -> str:
     parts = ["<section><h2>Parameters</h2>"]
     for step, fit in enumerate(result.models, start=1):
         parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit)}")
-    cf = result.closed_form
-    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.4g}</td><td>{PARAMETER_UNITS.get(k, '')}</td></tr>"
-                   for k, v in cf.params.items())
+    cf, cf_std = result.closed_form, result.closed_form_std()
+    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.4g}</td><td>"
+                   + ("-" if cf_std.get(k) is None else f"{cf_std[k]:.2g}")
+                   + f"</td><td>{PARAMETER_UNITS.get(k, '')}</td></tr>" for k, v in cf.params.items())
     parts.append(
         f"<h3>Closed form ({html.escape(cf.method)}, eq. {html.escape(', '.join(cf.equations))})</h3>"
-        f"<table><tr><th>parameter</th><th>value</th><th>unit</th></tr>{rows}</table>"
+        "<p>std: the whole-record fit's, combined with the closed form's distance from that fit.</p>"
+        f"<table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>{rows}</table>"
         + (f"<p>{html.escape(cf.message)}</p>" if cf.message else ""))
     parts.append("</section>")
     return "".join(parts)
