@@ -61,6 +61,11 @@ class Record:
             if not np.all(np.isfinite(a)):
                 raise RecordError(f"{self.source}: {name}: non-finite values")
 
+    def reading(self, force: np.ndarray) -> np.ndarray:
+        """What the tactile segments read of model forces (T, n) in N: through the dead
+        band where the record has one (``DeadBand.reading``), else the forces."""
+        return force if self.dead_band is None else self.dead_band.reading(force)
+
     @cached_property
     def marker_reference(self) -> np.ndarray:
         """Where each marker starts (N, 2): the mean of the frames before the pull, or

@@ -119,8 +119,10 @@ def test_frictionless_block_is_the_analytic_uniaxial_solution(geometry, refine):
 
 def test_shape_between_solved_ratios_is_exact_and_does_not_depend_on_what_came_before():
     """A ratio off the Taylor grid takes the first-order step from the grid point: equal to
-    a direct solve within 1e-13 relative (the step's error ~(5e-8)^2 u''), and the same
-    whatever was solved before (an online fit and an offline one must agree)."""
+    a direct solve within 1e-10 relative, a millionth of the tactile noise (~1e-3 of the
+    force) and far above rounding on any CPU (the step's own error ~(5e-8)^2 u'' ~ 1e-15;
+    measured 2e-14 here; a 1e-3 grid errs by 5e-8 and fails), and the same whatever was
+    solved before (an online fit and an offline one must agree)."""
     mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("bonded", "bonded"))
     edges = np.linspace(0.0, 0.08, 6)
     gamma = 0.3123456789
@@ -131,9 +133,9 @@ def test_shape_between_solved_ratios_is_exact_and_does_not_depend_on_what_came_b
     exact, _ = fresh._solve_shape(gamma)
     for fe in (fresh, busy):
         s = fe.shape(gamma)
-        np.testing.assert_allclose(s.bottom_force, exact.bottom_force, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(s.bottom_force, exact.bottom_force, rtol=1e-10, atol=0)
         np.testing.assert_allclose(s.displacement, exact.displacement, rtol=0,
-                                   atol=1e-13 * np.abs(exact.displacement).max())
+                                   atol=1e-10 * np.abs(exact.displacement).max())
     np.testing.assert_array_equal(fresh.shape(gamma).bottom_force, busy.shape(gamma).bottom_force)
     # The derivative in the ratio is the one a central difference of direct solves gives.
     _, slope = fresh._solve_shape(gamma)
@@ -143,7 +145,9 @@ def test_shape_between_solved_ratios_is_exact_and_does_not_depend_on_what_came_b
 
 
 def test_tabulated_shape_is_within_1e_5_of_the_solved_one():
-    """Figures and live overlays take the shape from the Chebyshev table (no solve)."""
+    """Figures and live overlays take the shape from the Chebyshev table (no solve): within
+    1e-5 relative (measured up to 8e-6, at gamma -0.5: the interpolation's own error, not
+    rounding), a hundredth of the tactile noise they are compared with."""
     mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5, Boundary("bonded", "bonded"))
     fe = QuasiStaticFE(mesh, 3, np.linspace(0.0, 0.08, 6))
     for gamma in (-0.5, 0.0, 0.3123, 0.49):

@@ -276,7 +276,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append(f"  accuracy above it: {result['correct_above']}/{result['bags_above']} "
                      f"({100 * result['accuracy_above']:.1f} %); below it: "
                      f"{result['correct_below']}/{result['bags_below']}")
-    for effect, th in (result.get("per_effect") or per_effect_thresholds(result["bags"], result["target"])).items():
+    for effect, th in per_effect_thresholds(result["bags"], result["target"]).items():
         at = "none" if th["threshold"] is None else f"{th['threshold']:.3g}"
         lines.append(f"  {effect:<18} threshold {at:>6}: {th['correct_above']}/{th['bags_above']} correct above, "
                      f"{th['correct_below']}/{th['bags_below']} below")

@@ -226,7 +226,7 @@ def _assess(record: Record, forward: QuasiStaticFE, model: Model, est: Estimate,
     p = forward.predict(model, est.params["gamma"], record.profile(), record.force_t - delays[0],
                         record.marker_t - delays[1])
     total = p.force.sum(axis=1)
-    read = record.dead_band.reading(p.force).sum(axis=1) if record.dead_band is not None else total
+    read = record.reading(p.force).sum(axis=1)
     away = away_from_boundaries(record.force_t, record.profile())
     err = (read - record.force.sum(axis=1))[away]
     which = phase_of(record.force_t[away], record.profile())

@@ -142,17 +142,22 @@ class QuasiStaticFE:
     TABLE_GAMMA = (-0.95, 0.4999)
     TABLE_NODES = 32
 
-    def implied_force(self, u: np.ndarray, gamma: float) -> np.ndarray:
+    def implied_force(self, u: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
         """Segment forces (N/Pa) per unit Young's modulus that marker displacements ``u``
-        (N, 2) in m imply: the elastic shape closest to ``u`` (least squares over the
-        markers) and its bottom reaction. The paper's ``J u`` (eq. 10, IV.B), computed on
-        this converged mesh instead of the marker grid's own elements.
+        (N, 2) in m imply, and their derivative in gamma: the elastic shape closest to
+        ``u`` (least squares over the markers) and its bottom reaction. The paper's ``J u``
+        (eq. 10, IV.B), computed on this converged mesh instead of the marker grid's own
+        elements; the derivative lets a closed form's solver skip finite differences.
 
         For speed (a closed form tries many ratios) the shapes come from a Chebyshev
         table over ``TABLE_GAMMA``, built on first use (``TABLE_NODES`` solves).
         """
         phi, force = self._shape_table(float(gamma))
-        return force * (np.ravel(u) @ phi) / (phi @ phi)
+        dphi, dforce = self._shape_table(float(gamma), derivative=True)
+        u = np.ravel(u)
+        s, p = u @ phi, phi @ phi
+        ds, dp = u @ dphi, 2.0 * (phi @ dphi)
+        return force * s / p, dforce * s / p + force * (ds * p - s * dp) / p**2
 
     def tabulated_shape(self, gamma: float) -> ElasticShape:
         """The elastic shape from the implied-force table (within 1e-5 relative, no
@@ -163,16 +168,6 @@ class QuasiStaticFE:
             return self.shape(gamma)
         phi, force = self._shape_table(float(gamma))
         return ElasticShape(phi.reshape(-1, 2), force)
-
-    def implied_force_slope(self, u: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`implied_force` and its derivative in gamma (the table's own derivative:
-        a closed form's solver then needs no finite differences)."""
-        phi, force = self._shape_table(float(gamma))
-        dphi, dforce = self._shape_table(float(gamma), derivative=True)
-        u = np.ravel(u)
-        s, p = u @ phi, phi @ phi
-        ds, dp = u @ dphi, 2.0 * (phi @ dphi)
-        return force * s / p, dforce * s / p + force * (ds * p - s * dp) / p**2
 
     def _shape_table(self, gamma: float, derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.TABLE_GAMMA

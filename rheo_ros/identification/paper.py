@@ -410,16 +410,10 @@ def solve_node_equations(
     K_lambda, K_mu = mesh.stiffness_parts
     g_lambda, g_mu = (K_lambda @ u.ravel())[bottom_y], (K_mu @ u.ravel())[bottom_y]
 
-    def g_of(gamma: float) -> np.ndarray:
+    def g_of(gamma: float) -> tuple[np.ndarray, np.ndarray]:
+        """``g`` at the usable nodes and its derivative in gamma."""
         if forward is not None:
-            return forward.implied_force(u, gamma)[nodes][usable]
-        lam, mu = lame_per_unit_modulus(gamma)
-        return lam * g_lambda + mu * g_mu
-
-    def g_slope(gamma: float) -> tuple[np.ndarray, np.ndarray]:
-        """``g`` and its derivative in gamma."""
-        if forward is not None:
-            g, dg = forward.implied_force_slope(u, gamma)
+            g, dg = forward.implied_force(u, gamma)
             return g[nodes][usable], dg[nodes][usable]
         (lam, mu), (dlam, dmu) = lame_per_unit_modulus(gamma), lame_slope_per_unit_modulus(gamma)
         return lam * g_lambda + mu * g_mu, dlam * g_lambda + dmu * g_mu
@@ -430,13 +424,13 @@ def solve_node_equations(
 
     def residuals(x: np.ndarray) -> np.ndarray:
         c2, eta, gamma = unpack(x)
-        g = g_of(gamma)
+        g, _ = g_of(gamma)
         return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
 
     def jacobian(x: np.ndarray) -> np.ndarray:
         # Analytic: a closed form runs online after each phase, within its latency budget.
         c2, eta, gamma = unpack(x)
-        g, dg = g_slope(gamma)
+        g, dg = g_of(gamma)
         lag = eta * F_end / (r * c2)
         columns = [np.concatenate([c2 * g / sa, -lag / sb]), np.concatenate([np.zeros_like(g), (eta * g + lag) / sb])]
         if search:
@@ -444,7 +438,7 @@ def solve_node_equations(
         return np.column_stack(columns)
 
     usable = np.ones(nodes.size, bool)
-    g0 = g_of(0.3 if block_gamma is None else block_gamma)
+    g0, _ = g_of(0.3 if block_gamma is None else block_gamma)
     usable = (g0 > 0) & (a > 0) & (b > 0)
     if usable.sum() < (2 if block_gamma is None else 1):
         raise RecordError(

@@ -300,8 +300,7 @@ class PhaseIdentifier:
         use = away_from_boundaries(rec.force_t, profile)
         # Through the tactile dead band, as the offline analysis reads a model: after the
         # let-go a force below it reads zero, not its small true value.
-        read = rec.dead_band.reading(p.force) if rec.dead_band is not None else p.force
-        err = read.sum(axis=1)[use] - rec.force.sum(axis=1)[use]
+        err = rec.reading(p.force).sum(axis=1)[use] - rec.force.sum(axis=1)[use]
         return float(np.sqrt(np.mean(err**2)))
 
 
