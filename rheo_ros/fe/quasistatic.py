@@ -98,7 +98,6 @@ class QuasiStaticFE:
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
         self._shapes: dict[float, tuple[ElasticShape, ElasticShape]] = {}   # gamma: (shape, d shape/d gamma)
         self._table: np.ndarray | None = None
-        self._table_slope: np.ndarray | None = None
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -152,8 +151,7 @@ class QuasiStaticFE:
         For speed (a closed form tries many ratios) the shapes come from a Chebyshev
         table over ``TABLE_GAMMA``, built on first use (``TABLE_NODES`` solves).
         """
-        phi, force = self._shape_table(float(gamma))
-        dphi, dforce = self._shape_table(float(gamma), derivative=True)
+        (phi, force), (dphi, dforce) = self._shape_table(float(gamma))
         u = np.ravel(u)
         s, p = u @ phi, phi @ phi
         ds, dp = u @ dphi, 2.0 * (phi @ dphi)
@@ -166,10 +164,11 @@ class QuasiStaticFE:
         lo, hi = self.TABLE_GAMMA
         if not lo <= gamma <= hi:
             return self.shape(gamma)
-        phi, force = self._shape_table(float(gamma))
+        phi, force = self._shape_table(float(gamma))[0]
         return ElasticShape(phi.reshape(-1, 2), force)
 
-    def _shape_table(self, gamma: float, derivative: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def _shape_table(self, gamma: float) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+        """(shape, bottom force) and their derivatives in gamma, from the table."""
         lo, hi = self.TABLE_GAMMA
         if not lo <= gamma <= hi:
             raise ValueError(f"Poisson ratio {gamma} outside the table's [{lo}, {hi}]")
@@ -178,11 +177,15 @@ class QuasiStaticFE:
             x = np.cos(np.pi * (np.arange(n) + 0.5) / n)
             shapes = [self._solve_shape(lo + (xi + 1) / 2 * (hi - lo))[0] for xi in x]
             values = np.array([np.concatenate([s.displacement.ravel(), s.bottom_force]) for s in shapes])
-            self._table = chebyshev.chebfit(x, values, n - 1)
-            self._table_slope = chebyshev.chebder(self._table) * (2 / (hi - lo))
-        row = chebyshev.chebval(2 * (gamma - lo) / (hi - lo) - 1, self._table_slope if derivative else self._table)
-        k = self.mesh.nodes.size
-        return row[:k], row[k:]
+            coef = chebyshev.chebfit(x, values, n - 1)
+            slope = np.vstack([chebyshev.chebder(coef) * (2 / (hi - lo)), np.zeros((1, coef.shape[1]))])
+            self._table = np.hstack([coef, slope])   # (n, 2 k): values and slopes side by side
+        # One product with the Chebyshev basis at gamma (T_j = cos(j arccos x)) instead of
+        # chebval's Clenshaw loop over arrays: a closed form evaluates it hundreds of times.
+        x = np.clip(2 * (gamma - lo) / (hi - lo) - 1, -1.0, 1.0)
+        row = np.cos(np.arange(self.TABLE_NODES) * np.arccos(x)) @ self._table
+        k, m = self.mesh.nodes.size, self._table.shape[1] // 2
+        return (row[:k], row[k:m]), (row[m:m + k], row[m + k:])
 
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,

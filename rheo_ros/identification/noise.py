@@ -53,8 +53,9 @@ class SensorNoise:
     marker_samples: int
 
 
-def sensor_noise(record: Record) -> SensorNoise:
-    """The noise of each tactile segment over its live readings, and of the markers."""
+def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each tactile segment's noise over its live readings: (nodes,) std (N, NaN where
+    too few live readings), (T, nodes) the live readings, (nodes,) differences counted."""
     force = record.force
     nodes = force.shape[1]
     band = record.dead_band
@@ -67,5 +68,11 @@ def sensor_noise(record: Record) -> SensorNoise:
             std[j], counts[j] = difference_noise(force[:, j], live[:, j])
         if band is not None:
             live = band.live(force, np.nan_to_num(std, nan=0.0))
+    return std, live, counts
+
+
+def sensor_noise(record: Record) -> SensorNoise:
+    """The noise of each tactile segment over its live readings, and of the markers."""
+    std, live, counts = force_noise(record)
     marker_std, marker_samples = difference_noise(record.markers)
     return SensorNoise(std, live, marker_std, counts, marker_samples)

@@ -35,7 +35,7 @@ from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh, lame_per_unit_modulus, lame_slope_per_unit_modulus
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.noise import sensor_noise
+from rheo_ros.identification.noise import force_noise
 from rheo_ros.models.elements import three_element
 from rheo_ros.models.response import respond
 from rheo_ros.record import Record, RecordError
@@ -86,6 +86,16 @@ def _rate_search(residuals, rate0: float, n_linear: int) -> tuple[float, float]:
     return float(np.exp(fit.x[0])), rel_std
 
 
+def _line_fit(x: np.ndarray, y: np.ndarray, y_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``y ~ a + b x`` per column of ``y`` (``y_mean`` its column means): ((2, columns)
+    intercepts and slopes, residuals). About the means, as stable as a QR; a rate search
+    calls it hundreds of times, where a LAPACK least squares each was its cost."""
+    dx = x - x.mean()
+    b = (dx @ (y - y_mean)) / (dx @ dx)
+    a = y_mean - b * x.mean()
+    return np.vstack([a, b]), a + np.outer(x, b) - y
+
+
 def fit_force_curves(
     t: np.ndarray, force: np.ndarray, profile: StageProfile, guard: float = 0.1, source: str = "<memory>"
 ) -> ForceCurves:
@@ -103,14 +113,13 @@ def fit_force_curves(
             raise RecordError(f"{source}: force: {mask.sum()} samples in the {name} phase, need 4 to fit")
     tp, tk = t[pull] - t_ps, t[keep] - t_pe
     Fp, Fk = force[pull], force[keep]
+    Fp_mean = Fp.mean(axis=0)
 
     def amplitudes(rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        ep, ek = np.exp(-rate * tp), np.exp(-rate * tk)
-        X = np.column_stack([np.ones_like(ep), ep])
-        ab, *_ = np.linalg.lstsq(X, Fp, rcond=None)  # (2, nodes): asymptote, amplitude
-        k = (ek @ Fk) / (ek @ ek)                    # (nodes,)
-        res = np.concatenate([(X @ ab - Fp).ravel(), (np.outer(ek, k) - Fk).ravel()])
-        return ab, k, res
+        ek = np.exp(-rate * tk)
+        ab, res_p = _line_fit(np.exp(-rate * tp), Fp, Fp_mean)
+        k = (ek @ Fk) / (ek @ ek)                                  # (nodes,)
+        return ab, k, np.concatenate([res_p.ravel(), (np.outer(ek, k) - Fk).ravel()])
 
     total = np.abs(Fk).sum(axis=1)
     head, tail = total[: max(1, total.size // 10)].mean(), total[-max(1, total.size // 10):].mean()
@@ -144,11 +153,11 @@ def fit_pull_curve(
     if pull.sum() < 4:
         raise RecordError(f"{source}: force: {pull.sum()} samples in the pull phase, need 4 to fit")
     tp, Fp = t[pull] - t_ps, force[pull]
+    Fp_mean = Fp.mean(axis=0)
 
     def amplitudes(rate: float) -> tuple[np.ndarray, np.ndarray]:
-        X = np.column_stack([np.ones_like(tp), np.exp(-rate * tp)])
-        ab, *_ = np.linalg.lstsq(X, Fp, rcond=None)
-        return ab, (X @ ab - Fp).ravel()
+        ab, res = _line_fit(np.exp(-rate * tp), Fp, Fp_mean)
+        return ab, res.ravel()
 
     rate, rel_std = _rate_search(lambda r: amplitudes(r)[1], 1.0 / (t_pe - t_ps), 2 * force.shape[1])
     (asym, amp), res = amplitudes(rate)
@@ -260,7 +269,7 @@ def zero_force_baseline(record: Record) -> tuple[np.ndarray, str]:
     else:
         slope, offset = np.zeros(force.shape[1]), force[zero].mean(axis=0)
     baseline = offset[None] + slope[None] * t[:, None]
-    noise = np.nan_to_num(sensor_noise(record).force_std, nan=np.inf)
+    noise = np.nan_to_num(force_noise(record)[0], nan=np.inf)   # the markers' is not needed here
     size = np.abs(baseline[during]).max(axis=0) if during.any() else np.zeros(force.shape[1])
     if not np.any(size > BASELINE_SIGNIFICANT * noise):
         return none, ""
