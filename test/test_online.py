@@ -249,3 +249,25 @@ def test_without_refinement_the_release_closed_form_is_the_final_update(clean_up
     closed = [u for u in clean_updates[1] if u.method != "whole_record"]
     for mine, theirs in zip(updates, closed):
         np.testing.assert_array_equal(mine.values, theirs.values)
+
+
+def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
+    """The estimator's fit lane (seconds per job) under pushes arriving faster: bounded
+    at its size, oldest dropped and counted, order kept; a waiting reader wakes."""
+    import threading
+
+    from rheo_ros.online.backlog import Backlog
+
+    lane: Backlog[int] = Backlog(3)
+    for i in range(10):
+        lane.put(i)
+    assert len(lane) == 3 and lane.dropped == 7
+    assert [lane.get() for _ in range(3)] == [7, 8, 9]
+    got: list[int] = []
+    reader = threading.Thread(target=lambda: got.append(lane.get()))
+    reader.start()
+    lane.put(42)
+    reader.join(timeout=5.0)
+    assert got == [42] and lane.dropped == 7
+    with pytest.raises(ValueError, match="at least 1"):
+        Backlog(0)

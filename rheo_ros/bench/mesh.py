@@ -24,7 +24,7 @@ from rheo_ros.bench.cases import TABLE_IV
 from rheo_ros.experiment import StageProfile, sample_times
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.refine import refine
+from rheo_ros.identification.refine import DISCRETISATION_RATIO, refine
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.params import Setup, load_params
@@ -32,6 +32,10 @@ from rheo_ros.record import Record
 
 LEVELS = (1, 2, 3, 4, 6, 8)
 REFERENCE = 16
+PARAMETERS = ("E", "c1", "c2", "gamma")
+# The convergence order: data from this level (257 x 257 nodes) fitted at the levels
+# below; each halving's shift over the previous one is 2^-p.
+ORDER_DATA, ORDER_LEVELS = 64, (8, 16, 32)
 
 
 def fine_mesh_record(setup: Setup, truth: dict[str, float], refine_level: int, profile: StageProfile) -> Record:
@@ -64,8 +68,21 @@ def run(boundaries: tuple[tuple[str, str], ...] = (("bonded", "bonded"),)) -> di
                 est = refine(record, start, forward=forward)
                 rows.append({"data_refine": data_level, "refine": level, "fe_nodes": forward.fe_mesh.nodes.shape[0],
                              "error_pct": est.relative_errors(truth), "fit_s": time.perf_counter() - t0})
-        out.append({"boundary": {"bottom": bottom, "top": top}, "rows": rows})
+        out.append({"boundary": {"bottom": bottom, "top": top}, "rows": rows, "order": convergence(setup, truth, profile, start)})
     return {"truth": truth, "reference_refine": REFERENCE, "cases": out}
+
+
+def convergence(setup: Setup, truth: dict[str, float], profile: StageProfile, start: Estimate) -> dict[str, Any]:
+    """Fits at ``ORDER_LEVELS`` of data from ``ORDER_DATA``: the parameters (%, against the
+    truth) and, per parameter, the ratio of successive shifts (2^-p; the identification's
+    ``DISCRETISATION_RATIO``)."""
+    record = fine_mesh_record(setup, truth, ORDER_DATA, profile)
+    errors = np.array([[refine(record, start, forward=QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges),
+                               discretisation=False).relative_errors(truth)[k] for k in PARAMETERS]
+                       for level in ORDER_LEVELS])
+    shifts = np.diff(errors, axis=0)
+    return {"data_refine": ORDER_DATA, "levels": list(ORDER_LEVELS), "error_pct": errors.tolist(),
+            "ratio": (shifts[1:] / shifts[:-1]).tolist()}
 
 
 def format_table(r: dict[str, Any]) -> str:
@@ -79,5 +96,12 @@ def format_table(r: dict[str, Any]) -> str:
         for row in case["rows"]:
             e = row["error_pct"]
             lines.append(f"    {row['data_refine']:>5} {row['refine']:>6} {row['fe_nodes']:>8} "
-                         + " ".join(f"{e[k]:>+9.4f}" for k in ("E", "c1", "c2", "gamma")) + f" {row['fit_s']:>6.1f}")
+                         + " ".join(f"{e[k]:>+9.4f}" for k in PARAMETERS) + f" {row['fit_s']:>6.1f}")
+        o = case["order"]
+        for level, e in zip(o["levels"], o["error_pct"]):
+            lines.append(f"    {o['data_refine']:>5} {level:>6} {'':>8} " + " ".join(f"{v:>+9.4f}" for v in e))
+        for (a, b, c), ratio in zip(zip(o["levels"], o["levels"][1:], o["levels"][2:]), o["ratio"]):
+            lines.append(f"    shift {b}->{c} over {a}->{b} (2^-p): " + " ".join(
+                f"{k} {v:.3f}" for k, v in zip(PARAMETERS, ratio)) + " (identification: DISCRETISATION_RATIO "
+                f"{DISCRETISATION_RATIO})")
     return "\n".join(lines)

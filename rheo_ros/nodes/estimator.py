@@ -56,6 +56,7 @@ from rheo_ros.io.messages import (
 )
 from rheo_ros.identification import estimate as identified
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
+from rheo_ros.online.backlog import Backlog
 from rheo_ros.online.estimator import (
     Job,
     OnlineDiagnosis,
@@ -78,6 +79,7 @@ SENSOR_QOS = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_ALL, reliability=
 # reliable KEEP_LAST writer drops a sample a slow reader has not acknowledged when the
 # next one comes, and discovery may finish after the first updates.
 LATCHED_QOS = QoSProfile(depth=16, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+FIT_BACKLOG = 8          # whole-record jobs waiting (about three pushes' worth)
 PREDICTION_RATE = 10.0   # Hz of stamps, per predicted topic
 TOPICS = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
 
@@ -120,7 +122,9 @@ class EstimatorNode(Node):
         if self.core.config.refine:
             self.pools["fit"] = self._start_pool("fit")
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
-        self.fit_jobs: queue.Queue[tuple[Job, identified.Estimate | RecordError, float] | None] = queue.Queue()
+        # Fits and diagnoses take seconds: a lane that falls behind keeps the newest
+        # FIT_BACKLOG jobs and counts what it drops (reported on /diagnostics).
+        self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(FIT_BACKLOG)
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
@@ -369,6 +373,9 @@ class EstimatorNode(Node):
             reasons.append(self.verdict)
         if self.open_params:
             reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
+        if self.fit_jobs.dropped:
+            reasons.append(f"{self.fit_jobs.dropped} whole-record fit(s) skipped: the fit lane fell behind the "
+                           f"pushes (it keeps the newest {FIT_BACKLOG})")
         if self.core.dropped_pushes:
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):

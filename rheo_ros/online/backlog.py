@@ -1,0 +1,44 @@
+"""A bounded work queue for a lane that may fall behind its input."""
+
+from __future__ import annotations
+
+import threading
+from collections import deque
+from typing import Generic, TypeVar
+
+Item = TypeVar("Item")
+
+
+class Backlog(Generic[Item]):
+    """First in, first out, at most ``size`` items waiting: putting into a full backlog
+    drops the oldest waiting item and counts it (``dropped``). A lane slower than the
+    pushes arriving (whole-record fits and diagnoses at a 10 x replay, or a robot probing
+    faster than the fits run) then holds the newest work and bounded memory, not a queue
+    that grows for as long as the node runs."""
+
+    def __init__(self, size: int) -> None:
+        if size < 1:
+            raise ValueError(f"backlog size {size}: at least 1")
+        self.size = size
+        self.dropped = 0
+        self._items: deque[Item] = deque()
+        self._ready = threading.Condition()
+
+    def put(self, item: Item) -> None:
+        with self._ready:
+            if len(self._items) >= self.size:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._ready.notify()
+
+    def get(self) -> Item:
+        """The oldest waiting item; blocks until there is one."""
+        with self._ready:
+            while not self._items:
+                self._ready.wait()
+            return self._items.popleft()
+
+    def __len__(self) -> int:
+        with self._ready:
+            return len(self._items)
