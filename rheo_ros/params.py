@@ -27,6 +27,9 @@ from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.record import Record
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
+FORWARD_MODELS_KEPT = 4
+_FORWARD_MODELS: dict[tuple, QuasiStaticFE] = {}   # Setup.forward_model's, by geometry
+
 DEFAULTS: dict[str, Any] = {
     "geometry": "plane_fe", "boundary.bottom": "bonded", "boundary.top": "bonded", "mesh.refine": 8,
     "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
@@ -278,9 +281,21 @@ class Setup:
 
     def forward_model(self) -> QuasiStaticFE:
         """The identification's forward model: the marker grid refined ``mesh.refine``
-        times; beyond 1, each tactile segment's force integrated over its columns."""
+        times; beyond 1, each tactile segment's force integrated over its columns.
+
+        One per geometry in a process, shared by every analysis, fit and node there: what
+        it caches (solved shapes, the implied-force table, the finer meshes' solves) are
+        functions of the geometry and the ratio alone, and cost up to a second each."""
         refine = self.params["mesh.refine"]
-        return QuasiStaticFE(self.mesh, refine, self.segment_edges(refine))
+        edges = self.segment_edges(refine)
+        m = self.mesh
+        key = (m.geometry, m.width, m.height, m.thickness, m.rows, m.cols, m.boundary, refine,
+               None if edges is None else tuple(edges.tolist()))
+        if key not in _FORWARD_MODELS:
+            if len(_FORWARD_MODELS) >= FORWARD_MODELS_KEPT:
+                del _FORWARD_MODELS[next(iter(_FORWARD_MODELS))]
+            _FORWARD_MODELS[key] = QuasiStaticFE(m, refine, edges)
+        return _FORWARD_MODELS[key]
 
     @property
     def tactile(self) -> TactileArray:

@@ -87,7 +87,8 @@ def test_refinement_std_is_within_the_cramer_rao_bound(plane_case):
         c = identify_paper(rec)
         closed.append([c.params[k] for k in truth])
         # The spread only: the discretisation term touches the std, not the values.
-        refined.append([refine(rec, c, discretisation=False).params[k] for k in truth])
+        fit = refine(rec, c, discretisation=False)
+        refined.append([fit.params[k] for k in truth])
     refined, closed = np.array(refined), np.array(closed)
     for j, k in enumerate(truth):
         ratio = refined[:, j].std(ddof=1) / bound[k]

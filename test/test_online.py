@@ -1,5 +1,6 @@
 """The online core (no ROS): segmentation as the data stream in, and estimates per phase."""
 
+import threading
 from dataclasses import replace
 from pathlib import Path
 
@@ -254,8 +255,6 @@ def test_without_refinement_the_release_closed_form_is_the_final_update(clean_up
 def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
     """The estimator's fit lane (seconds per job) under pushes arriving faster: bounded
     at its size, oldest dropped and counted, order kept; a waiting reader wakes."""
-    import threading
-
     from rheo_ros.online.backlog import Backlog
 
     lane: Backlog[int] = Backlog(3)
@@ -271,3 +270,39 @@ def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
     assert got == [42] and lane.dropped == 7
     with pytest.raises(ValueError, match="at least 1"):
         Backlog(0)
+
+
+
+
+def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when_killed():
+    """The estimator's lanes call their identifier in a worker process: a result comes
+    back, an exception is raised in the caller, a worker killed during a call (out of
+    memory) fails that call with WorkerDied and a new one serves the next, and one that
+    died while idle is replaced without failing the call."""
+    import os
+    import signal
+    import time
+
+    from rheo_ros.online.worker import Worker, WorkerDied
+
+    worker = Worker(time.sleep)   # any picklable object: its methods are called
+    try:
+        assert worker.call("__call__", 0.01) is None
+        assert 0.01 <= worker.last_compute < 5.0   # the sleep, timed in the worker
+        with pytest.raises(TypeError, match="cannot be interpreted"):
+            worker.call("__call__", "ten")
+        first = worker.process.pid
+        killer = threading.Timer(0.3, os.kill, (first, signal.SIGKILL))
+        killer.start()
+        with pytest.raises(WorkerDied, match="exit code -9"):
+            worker.call("__call__", 30.0)
+        second = worker.process.pid
+        assert second != first and worker.call("__call__", 0.0) is None
+        os.kill(second, signal.SIGKILL)
+        worker.process.join(timeout=5.0)
+        assert worker.call("__call__", 0.0) is None and worker.process.pid not in (first, second)
+    finally:
+        worker.close()
+    assert not worker.process.is_alive()
+    with pytest.raises(WorkerDied, match="stopped"):
+        worker.call("__call__", 0.0)

@@ -77,9 +77,9 @@ def convergence(setup: Setup, truth: dict[str, float], profile: StageProfile, st
     truth) and, per parameter, the ratio of successive shifts (2^-p; the identification's
     ``DISCRETISATION_RATIO``)."""
     record = fine_mesh_record(setup, truth, ORDER_DATA, profile)
-    errors = np.array([[refine(record, start, forward=QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges),
-                               discretisation=False).relative_errors(truth)[k] for k in PARAMETERS]
-                       for level in ORDER_LEVELS])
+    fits = [refine(record, start, forward=QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges),
+                   discretisation=False).relative_errors(truth) for level in ORDER_LEVELS]
+    errors = np.array([[fit[k] for k in PARAMETERS] for fit in fits])
     shifts = np.diff(errors, axis=0)
     return {"data_refine": ORDER_DATA, "levels": list(ORDER_LEVELS), "error_pct": errors.tolist(),
             "ratio": (shifts[1:] / shifts[:-1]).tolist()}

@@ -40,7 +40,8 @@ def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dic
             continue
         estimates["closed_form"].append([closed.params[k] for k in truth])
         try:
-            estimates["whole_record"].append([refine(record, closed).params[k] for k in truth])
+            fit = refine(record, closed)
+            estimates["whole_record"].append([fit.params[k] for k in truth])
         except (RecordError, np.linalg.LinAlgError):
             failures["whole_record"] += 1
     methods = {}

@@ -21,13 +21,10 @@ dies is replaced.
 
 from __future__ import annotations
 
-import multiprocessing
 import queue
 import threading
 import time
 from collections import deque
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -57,16 +54,8 @@ from rheo_ros.io.messages import (
 from rheo_ros.identification import estimate as identified
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
-from rheo_ros.online.estimator import (
-    Job,
-    OnlineDiagnosis,
-    OnlineEstimator,
-    Update,
-    closed_form_in_worker,
-    diagnose_in_worker,
-    fit_in_worker,
-    worker_init,
-)
+from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update
+from rheo_ros.online.worker import Worker, WorkerDied
 from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
 
@@ -111,16 +100,16 @@ class EstimatorNode(Node):
         self.open_params: dict[str, str] = {}
         self.predicted_at: dict[str, float] = {}
         self.updates = 0
-        # Latency from the message that completed a phase to the update's publication, and
-        # of that the closed form's round trip through its worker process (the rest waits
-        # on the lanes' queues and the executor).
-        self.latency = {"closed_form": deque(maxlen=1000), "whole_record": deque(maxlen=1000),
-                        "closed_form worker": deque(maxlen=1000)}
+        # Latency from the message that completed a phase to the update's publication; of
+        # that the closed form's round trip through its worker process, and of that its
+        # computation (the rest: the transfer, and the lanes' queues and the executor).
+        self.latency = {k: deque(maxlen=1000) for k in ("closed_form", "whole_record", "closed_form worker",
+                                                        "closed_form compute")}
         self.started = time.monotonic()
         # Lanes: a thread each, handing the work to its worker process and the result back.
-        self.pools = {"closed_form": self._start_pool("closed_form")}
+        self.workers = {"closed_form": Worker(self.core.identify, self.NICENESS["closed_form"])}
         if self.core.config.refine:
-            self.pools["fit"] = self._start_pool("fit")
+            self.workers["fit"] = Worker(self.core.identify, self.NICENESS["fit"])
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
         # Fits and diagnoses take seconds: a lane that falls behind keeps the newest
         # FIT_BACKLOG jobs and counts what it drops (reported on /diagnostics).
@@ -128,7 +117,8 @@ class EstimatorNode(Node):
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
-        self.outbox: queue.Queue[tuple[Update | OnlineDiagnosis, float, float | None] | tuple[str, str]] = queue.Queue()
+        self.outbox: queue.Queue[tuple[Update | OnlineDiagnosis, float, tuple[float, float] | None]
+                                 | tuple[str, str]] = queue.Queue()
         self.results_ready = self.create_guard_condition(self.publish_results)
         self.lanes = [threading.Thread(target=self.closed_form_lane, name="estimator-closed-forms", daemon=True),
                       threading.Thread(target=self.fit_lane, name="estimator-fits", daemon=True)]
@@ -193,22 +183,15 @@ class EstimatorNode(Node):
 
     NICENESS = {"closed_form": 0, "fit": 10}
 
-    def _start_pool(self, lane: str) -> ProcessPoolExecutor:
-        # spawn, not fork: a forked copy of a process running DDS threads is unsafe.
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=worker_init, initargs=(self.core.identify, self.NICENESS[lane]))
-        pool.submit(int).result()   # start it now, not at the first phase
-        return pool
-
-    def _in_worker(self, lane: str, function, *args):
+    def _in_worker(self, lane: str, method: str, *args):
         try:
-            return self.pools[lane].submit(function, *args).result()
-        except BrokenProcessPool:
-            # The worker died (killed, out of memory): a new one for the next jobs.
-            self.pools[lane] = self._start_pool(lane)
-            raise RecordError(f"the {lane.replace('_', ' ')} worker process died; it was restarted") from None
+            return self.workers[lane].call(method, *args)
+        except WorkerDied as exc:
+            # Killed or out of memory: the worker restarted itself for the next jobs.
+            raise RecordError(f"{lane.replace('_', ' ')} lane: {exc}") from None
 
-    def _hand_out(self, update: Update | OnlineDiagnosis, arrival: float, worker: float | None = None) -> None:
+    def _hand_out(self, update: Update | OnlineDiagnosis, arrival: float,
+                  worker: tuple[float, float] | None = None) -> None:
         self.outbox.put((update, arrival, worker))
         self._wake()
 
@@ -236,14 +219,15 @@ class EstimatorNode(Node):
             job, arrival = item
             start = time.perf_counter()
             try:
-                update, closed = self._in_worker("closed_form", closed_form_in_worker, job)
+                update, closed = self._in_worker("closed_form", "closed_form", job)
             except Exception as exc:
                 self._failed(job, exc)
                 continue
             if update is not None:
-                self._hand_out(update, arrival, time.perf_counter() - start)
+                self._hand_out(update, arrival, (time.perf_counter() - start,
+                                                 self.workers["closed_form"].last_compute))
                 self.last_error = ""
-            if "fit" in self.pools:
+            if "fit" in self.workers:
                 self.fit_jobs.put((job, closed, arrival))
             elif update is None:
                 self._failed(job, closed)
@@ -253,7 +237,7 @@ class EstimatorNode(Node):
         while (item := self.fit_jobs.get()) is not None:
             job, closed, arrival = item
             try:
-                self._hand_out(self.core.fit(job, closed, run=lambda *a: self._in_worker("fit", fit_in_worker, *a)),
+                self._hand_out(self.core.fit(job, closed, run=lambda *a: self._in_worker("fit", "fit", *a)),
                                arrival)
             except Exception as exc:
                 self._failed(job, exc)
@@ -264,7 +248,7 @@ class EstimatorNode(Node):
             fit = self.core.last_fit(e.experiment)
             if e.name == "release" and self.core.config.diagnose and fit is not None:
                 try:
-                    self._hand_out(self._in_worker("fit", diagnose_in_worker, job, fit), arrival)
+                    self._hand_out(self._in_worker("fit", "diagnose", job, fit), arrival)
                 except Exception as exc:
                     self._failed(job, exc)
 
@@ -280,7 +264,8 @@ class EstimatorNode(Node):
                 continue
             update, arrival, worker = item
             if worker is not None:
-                self.latency["closed_form worker"].append(worker)
+                self.latency["closed_form worker"].append(worker[0])
+                self.latency["closed_form compute"].append(worker[1])
             if isinstance(update, OnlineDiagnosis):
                 self.publish_verdict(update)
                 continue
@@ -400,10 +385,10 @@ class EstimatorNode(Node):
             super().destroy_node()
             return
         self.closed_jobs.put(None)
+        for worker in self.workers.values():   # a fit may be running: it is stopped, not awaited
+            worker.close()
         for lane in self.lanes:
             lane.join(timeout=5.0)
-        for pool in self.pools.values():
-            pool.shutdown(wait=False, cancel_futures=True)
         super().destroy_node()
 
 

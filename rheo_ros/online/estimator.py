@@ -24,8 +24,6 @@ before it are kept.
 from __future__ import annotations
 
 import bisect
-import os
-import signal
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 
@@ -493,43 +491,6 @@ class OnlineEstimator:
         t = np.asarray(t, float)
         pred = self.identify.forward.predict(model, p["gamma"], profile, t, t, tabulated=True)   # no solve in intake
         return pred.force.sum(axis=1), self.mesh.nodes[None] + pred.displacement
-
-
-# A worker process's identifier (``worker_init`` makes it). The node runs closed forms
-# and fits in worker processes, off its own interpreter: neither waits for the other
-# nor for message intake (a thread would share the interpreter's lock with intake).
-_worker_identifier: PhaseIdentifier | None = None
-
-
-def worker_init(identifier: PhaseIdentifier, niceness: int = 0) -> None:
-    """Initialiser of a worker process: the identifier for all its jobs; ``niceness``
-    lowers its priority (fits yield the CPU to intake and closed forms)."""
-    global _worker_identifier
-    signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the node's to handle; the node stops us
-    os.nice(niceness)
-    identifier.prepare()
-    _worker_identifier = identifier
-
-
-def _identifier() -> PhaseIdentifier:
-    if _worker_identifier is None:
-        raise RuntimeError("runs in a process started with worker_init")
-    return _worker_identifier
-
-
-def closed_form_in_worker(job: Job) -> tuple[Update | None, Estimate | RecordError]:
-    """``PhaseIdentifier.closed_form`` in a process made by ``worker_init``."""
-    return _identifier().closed_form(job)
-
-
-def fit_in_worker(job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
-    """``PhaseIdentifier.fit`` in a process made by ``worker_init``."""
-    return _identifier().fit(job, start, note)
-
-
-def diagnose_in_worker(job: Job, fit: Estimate) -> OnlineDiagnosis:
-    """``PhaseIdentifier.diagnose`` in a process made by ``worker_init``."""
-    return _identifier().diagnose(job, fit)
 
 
 def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]],
