@@ -96,6 +96,15 @@ def _line_fit(x: np.ndarray, y: np.ndarray, y_mean: np.ndarray) -> tuple[np.ndar
     return np.vstack([a, b]), a + np.outer(x, b) - y
 
 
+def _decay_fit(rate: float, t: np.ndarray, y: np.ndarray, y_mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``y ~ A + B exp(-rate t)`` per column of ``y``: ((2, columns) A and B, residuals).
+    Fitted as a line in ``1 - exp(-rate t)`` (expm1): at a rate too slow for the data,
+    ``exp(-rate t)`` is 1 to within rounding and a line in it cancels to rounding noise,
+    which the rate search's finite differences read as a well-determined rate."""
+    (a, b), res = _line_fit(-np.expm1(-rate * t), y, y_mean)
+    return np.vstack([a + b, -b]), res
+
+
 def fit_force_curves(
     t: np.ndarray, force: np.ndarray, profile: StageProfile, guard: float = 0.1, source: str = "<memory>"
 ) -> ForceCurves:
@@ -117,7 +126,7 @@ def fit_force_curves(
 
     def amplitudes(rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ek = np.exp(-rate * tk)
-        ab, res_p = _line_fit(np.exp(-rate * tp), Fp, Fp_mean)
+        ab, res_p = _decay_fit(rate, tp, Fp, Fp_mean)
         k = (ek @ Fk) / (ek @ ek)                                  # (nodes,)
         return ab, k, np.concatenate([res_p.ravel(), (np.outer(ek, k) - Fk).ravel()])
 
@@ -156,7 +165,7 @@ def fit_pull_curve(
     Fp_mean = Fp.mean(axis=0)
 
     def amplitudes(rate: float) -> tuple[np.ndarray, np.ndarray]:
-        ab, res = _line_fit(np.exp(-rate * tp), Fp, Fp_mean)
+        ab, res = _decay_fit(rate, tp, Fp, Fp_mean)
         return ab, res.ravel()
 
     rate, rel_std = _rate_search(lambda r: amplitudes(r)[1], 1.0 / (t_pe - t_ps), 2 * force.shape[1])
