@@ -4,9 +4,9 @@ The estimator node runs its closed forms and its fits each in one of these, off 
 own interpreter, so that neither waits for the other nor for message intake (a thread
 would share the interpreter's lock with intake). A call is one message each way over
 a ``multiprocessing`` pipe and the caller's thread blocks in ``recv`` with the
-interpreter's lock released: no executor thread relays it (``ProcessPoolExecutor``
-hands every call through a management thread and a queue, ~10 ms more per call under
-load on two cores).
+interpreter's lock released: no executor thread relays it, as ``ProcessPoolExecutor``'s
+management thread did. The worker times each computation, so that a caller can tell
+the transfer from the work (measured: ~2 ms of a closed form's 27 ms at p50).
 """
 
 from __future__ import annotations
@@ -76,16 +76,21 @@ class Worker:
             self.process.join(timeout=1.0)
             raise WorkerDied(f"the worker process ended while starting (exit code {self.process.exitcode})") from None
 
+    def _restart(self) -> int | None:
+        """A new process in place of one that ended; the old one's exit code."""
+        self._conn.close()
+        self.process.join(timeout=1.0)
+        code = self.process.exitcode
+        self._start()
+        return code
+
     def _receive(self) -> Any:
         try:
             status, value, self.last_compute = self._conn.recv()
         except (EOFError, OSError):
-            self._conn.close()
-            self.process.join(timeout=1.0)
-            code = self.process.exitcode
             if self._closed:
                 raise WorkerDied("the worker process was stopped") from None
-            self._start()
+            code = self._restart()
             raise WorkerDied(f"the worker process died (exit code {code}); it was restarted") from None
         if status == "error":
             raise value
@@ -103,9 +108,7 @@ class Worker:
         try:
             self._conn.send((method, args))
         except OSError:   # it died while idle: the call goes to a new one
-            self._conn.close()
-            self.process.join(timeout=1.0)
-            self._start()
+            self._restart()
             self._conn.send((method, args))
         return self._receive()
 
