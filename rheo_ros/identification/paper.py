@@ -30,6 +30,7 @@ from typing import Literal
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh, lame_per_unit_modulus, lame_slope_per_unit_modulus
@@ -437,13 +438,17 @@ def solve_node_equations(
         return lam * g_lambda + mu * g_mu, dlam * g_lambda + dmu * g_mu
 
     def unpack(x: np.ndarray) -> tuple[float, float, float]:
-        """c2, eta, gamma from the search vector (gamma searched only on plane_fe)."""
-        return np.exp(x[0]), np.exp(x[1]), x[2] if block_gamma is None else block_gamma
+        """c2, eta, gamma from the search vector (gamma searched only on plane_fe, as a
+        logistic of x[2] onto its range)."""
+        return np.exp(x[0]), np.exp(x[1]), g_lo + (g_hi - g_lo) * expit(x[2]) if search else block_gamma
 
     def residuals(x: np.ndarray) -> np.ndarray:
+        nonlocal overflowed
         c2, eta, gamma = unpack(x)
         g, _ = g_of(gamma)
-        return np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
+        out = np.concatenate([(c2 * g - a) / sa, (eta * g + eta * F_end / (r * c2) - b) / sb])
+        overflowed |= not np.all(np.isfinite(out))
+        return out
 
     def jacobian(x: np.ndarray) -> np.ndarray:
         # Analytic: a closed form runs online after each phase, within its latency budget.
@@ -452,7 +457,8 @@ def solve_node_equations(
         lag = eta * F_end / (r * c2)
         columns = [np.concatenate([c2 * g / sa, -lag / sb]), np.concatenate([np.zeros_like(g), (eta * g + lag) / sb])]
         if search:
-            columns.append(np.concatenate([c2 * dg / sa, eta * dg / sb]))
+            s = expit(x[2])
+            columns.append(np.concatenate([c2 * dg / sa, eta * dg / sb]) * ((g_hi - g_lo) * s * (1.0 - s)))
         return np.column_stack(columns)
 
     usable = np.ones(nodes.size, bool)
@@ -468,11 +474,23 @@ def solve_node_equations(
     g_lambda, g_mu, a, b, F_end, g0 = (v[usable] for v in (g_lambda, g_mu, a, b, F_end, g0))
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
     search = block_gamma is None
-    x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([0.3] if search else [])
     g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
-    lo = [-np.inf, -np.inf] + ([g_lo] if search else [])
-    hi = [np.inf, np.inf] + ([g_hi] if search else [])
-    sol = least_squares(residuals, x0, jac=jacobian, bounds=(lo, hi), xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([logit((0.3 - g_lo) / (g_hi - g_lo))]
+                                                                    if search else [])
+    # MINPACK (lm) with gamma kept in its range by the logistic, instead of a bounded
+    # trust-region search: the same optimum, the loop in compiled code (the release's
+    # closed form runs after each push within its latency budget; trf's Python loop was
+    # half of it). At a bound the logistic saturates and the search stops there.
+    overflowed = False
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    if overflowed or not np.all(np.isfinite(sol.x)):
+        # lm's unbounded steps left the finite range (measured once in 8 releases, on a
+        # push whose relaxation the data barely show): the trust-region search, whose
+        # steps stay within its region.
+        overflowed = False
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            sol = least_squares(residuals, x0, jac=jacobian, method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
     c2, eta, gamma = (float(v) for v in unpack(sol.x))
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")
