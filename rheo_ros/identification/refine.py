@@ -310,6 +310,11 @@ def refine(
         cov[free, free] += np.where(loose, 0.0, sys_std**2)
         systematic = {f"discretisation_{n}": float(v) for n, v in zip(names, sys_std)}
     rf, rm = problem.group_rms(params)
+    # -2 log-likelihood with each group's noise at its ML value (its residuals' RMS), constants
+    # dropped: fits with different weights (each estimates its own) compare on this, not on cost.
+    counts = np.append(problem.live_counts, problem.marker_count)
+    spread = np.append(rf, rm)
+    deviance = float(np.sum(np.where(counts > 0, counts * np.log(np.maximum(spread, 1e-300) ** 2), 0.0)))
     # NaN where the data show no noise (a noise-free simulation): no misfit figure then.
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.append(rf, rm) / np.append(noise.force_std, noise.marker_std)
@@ -339,7 +344,8 @@ def refine(
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
         covariance=cov[np.ix_(physical, physical)],
         residual_rms={"force": float(np.sqrt(np.nanmean(rf**2))), "markers": rm, "reduced_chi2": chi2,
-                      "cost": cost, "samples": float(problem.samples), "marker_std": float(problem.marker_std),
+                      "cost": cost, "deviance": deviance, "samples": float(problem.samples),
+                      "marker_std": float(problem.marker_std),
                       **{f"force_std_P{i + 1}": float(v) for i, v in enumerate(np.broadcast_to(
                           problem.force_std, (record.mesh.cols,)))}, **systematic,
                       **{f"noise_P{i + 1}": float(v) for i, v in enumerate(noise.force_std)},

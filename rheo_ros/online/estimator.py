@@ -189,14 +189,40 @@ class PhaseIdentifier:
             return None, exc
         return self._update(e, rec, est), est
 
-    def fit(self, job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
+    def fit(self, job: Job, start: Estimate, note: str = "", fallback: Estimate | None = None
+            ) -> tuple[Update, Estimate]:
         """The whole-record fit of the job's data from ``start``, checked for a relaxation
-        the data do not show; ``note`` goes in front of the fit's message."""
+        the data do not show; ``note`` goes in front of the fit's message.
+
+        Where ``start`` leaves a parameter undetermined (an ill-posed closed form: its raw
+        values are wherever its search stopped), the fit also runs from a start whose
+        relaxation shows within the record (``fallback``, this push's previous fit, or
+        else ``start``, with c2 lowered to that) and the more likely of the two is kept.
+        A slower start can strand the fit where c2 has no gradient (seen: c2 1.7e14
+        ends at c2 -> inf, c1 3.8 std off; from c2 <= 1e12 every start reaches the optimum).
+        """
         rec = job.record
-        fit = refine(rec, start, forward=self.forward)
+        fits = [refine(rec, start, forward=self.forward)]
+        if self.undetermined(rec, start):
+            fits.append(refine(rec, self._relaxation_in_view(rec, fallback or start), forward=self.forward))
+        fit = min(fits, key=lambda f: f.residual_rms["deviance"])
+        if fit is not fits[0]:
+            gain = fits[0].residual_rms["deviance"] - fit.residual_rms["deviance"]
+            note = "; ".join(filter(None, [note, f"fit from a start relaxing within the record ({gain:.3g} lower "
+                                                 "deviance than from the undetermined closed form)"]))
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
         return self._update(job.event, rec, fit, self._relaxation_unseen(rec, fit)), fit
+
+    @staticmethod
+    def _relaxation_in_view(rec: Record, est: Estimate) -> Estimate:
+        """``est`` with c2 lowered, if need be, so that the relaxation time (c1 + c2) / E
+        is the record's length."""
+        p = est.params
+        span = float(rec.force_t[-1] - rec.profile().t_pull_start)
+        c2 = p["E"] * span - p["c1"]
+        c2 = c2 if c2 > 0 else p["E"] * span
+        return replace(est, params={**p, "c2": min(p["c2"], c2)})
 
     def diagnose(self, job: Job, fit: Estimate) -> OnlineDiagnosis:
         """The model-discovery loop on a release job's push (``rheo_ros.diagnosis``): the
@@ -239,7 +265,9 @@ class PhaseIdentifier:
 
     # -- one update ------------------------------------------------------------------
 
-    def _update(self, e: PhaseEvent, rec: Record, est: Estimate, unseen: str = "") -> Update:
+    def undetermined(self, rec: Record, est: Estimate, unseen: str = "") -> dict[str, str]:
+        """The parameters of ``est`` these data leave undetermined, each with why (and what
+        experiment would determine it); ``unseen``: the fit's relaxation check found none."""
         names = tuple(n for n in BASE_PARAMETERS if n in est.params)
         values = np.array([est.params[n] for n in names])
         undetermined: dict[str, str] = {}
@@ -248,18 +276,17 @@ class PhaseIdentifier:
         seen = min(rec.force_t[-1], profile.t_keep_end) - profile.t_pull_start
         longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
                   else "a keep long enough for the force to relax visibly determines it")
-        cov = est.covariance
         if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
             undetermined["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
                                      "inside the physical range; a deeper push determines it")
-        if cov is None:
+        if est.covariance is None:
             rel = est.residual_rms.get("rate_rel_std", 0.0)
             if not rel <= self.config.rate_std:
                 for n in names:   # every parameter of the equations rests on the rate
                     undetermined[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
                                        f"rate x time seen = {rate * seen:.2g}); {longer}")
         else:
-            std = np.sqrt(np.clip(np.diag(cov), 0, None))
+            std = np.sqrt(np.clip(np.diag(est.covariance), 0, None))
             for i, n in enumerate(names):
                 if n == "gamma":
                     if not std[i] <= self.config.gamma_std:
@@ -268,10 +295,16 @@ class PhaseIdentifier:
                 elif not std[i] <= self.config.undetermined_std * abs(values[i]):
                     why = f"std {100 * std[i] / abs(values[i]):.0f} % of the value"
                     undetermined[n] = f"{why}; {longer}" if n in ("E", "c2") else why
-            cov = cov.copy()
         if unseen:
             for n in ("E", "c2"):
                 undetermined[n] = f"{unseen}; {longer}"
+        return undetermined
+
+    def _update(self, e: PhaseEvent, rec: Record, est: Estimate, unseen: str = "") -> Update:
+        names = tuple(n for n in BASE_PARAMETERS if n in est.params)
+        values = np.array([est.params[n] for n in names])
+        undetermined = self.undetermined(rec, est, unseen)
+        cov = None if est.covariance is None else est.covariance.copy()
         rmse = self._rmse_force(rec, est.params)
         bad = [i for i, n in enumerate(names) if n in undetermined]
         values[bad] = np.nan
@@ -453,9 +486,10 @@ class OnlineEstimator:
             yield self.fit(job, closed)
 
     def fit(self, job: Job, closed: Estimate | RecordError,
-            run: Callable[[Job, Estimate, str], tuple[Update, Estimate]] | None = None) -> Update:
+            run: Callable[[Job, Estimate, str, Estimate | None], tuple[Update, Estimate]] | None = None) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
-        no solution, from this push's previous fit.
+        no solution, from this push's previous fit (and from both where the closed form
+        leaves a parameter undetermined: ``PhaseIdentifier.fit``).
 
         Args:
             closed: the job's closed-form estimate, or why it has none.
@@ -466,12 +500,12 @@ class OnlineEstimator:
         """
         e = job.event
         note = ""
+        previous = self._fits.get(e.experiment)
         if isinstance(closed, RecordError):
-            previous = self._fits.get(e.experiment)
             if previous is None:
                 raise closed
-            closed, note = previous, f"closed form failed ({closed}); fit started from the previous update"
-        update, fit = (run or self.identify.fit)(job, closed, note)
+            closed, note, previous = previous, f"closed form failed ({closed}); fit started from the previous update", None
+        update, fit = (run or self.identify.fit)(job, closed, note, previous)
         self._fits = {e.experiment: fit}
         return update
 
