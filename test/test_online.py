@@ -9,8 +9,8 @@ import pytest
 
 from rheo_ros.io.bag import bag_samples, read_bag
 from rheo_ros.online.config import EstimatorConfig
-from rheo_ros.online.estimator import OnlineEstimator, estimate_bag, estimate_stream
-from rheo_ros.online.segmenter import PhaseSegmenter
+from rheo_ros.online.estimator import Job, OnlineEstimator, estimate_bag, estimate_stream, supersedes
+from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.params import Setup, load_params
 from rheo_ros.record import RecordError, segment_stage
 from rheo_ros.simulator import simulate_run
@@ -270,6 +270,28 @@ def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
     assert got == [42] and lane.dropped == 7
     with pytest.raises(ValueError, match="at least 1"):
         Backlog(0)
+
+
+def test_a_push_s_release_fit_supersedes_its_waiting_pull_and_keep_fits():
+    """A fit lane behind the pushes: a release job takes the place of its own push's
+    waiting pull and keep jobs (its fit covers their data), not of another push's, and
+    only then is the oldest dropped for room."""
+    from rheo_ros.online.backlog import Backlog
+
+    def job(experiment: int, phase: str):
+        return (Job(PhaseEvent(experiment, phase, 0.0, 1.0, 1.0, 10), None, ()), None, 0.0)
+
+    lane = Backlog(3, supersedes=lambda new, old: new is not None and old is not None and supersedes(new[0], old[0]))
+    for item in [job(1, "pull"), job(1, "keep"), job(2, "pull"), job(1, "release"), job(2, "keep")]:
+        lane.put(item)
+    assert [(j.event.experiment, j.event.name) for j, _, _ in lane._items] == [(1, "release"), (2, "keep")]
+    assert (lane.superseded, lane.dropped) == (3, 0)
+    for item in [job(3, "pull"), job(4, "pull")]:
+        lane.put(item)
+    assert [(j.event.experiment, j.event.name) for j, _, _ in lane._items] == [(2, "keep"), (3, "pull"), (4, "pull")]
+    assert (lane.superseded, lane.dropped) == (3, 1)
+    lane.put(None)   # the lane's stop sign supersedes nothing
+    assert len(lane) == 3 and lane.dropped == 2
 
 
 

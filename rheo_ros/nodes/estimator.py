@@ -54,7 +54,7 @@ from rheo_ros.io.messages import (
 from rheo_ros.identification import estimate as identified
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
-from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update
+from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
 from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
@@ -111,9 +111,11 @@ class EstimatorNode(Node):
         if self.core.config.refine:
             self.workers["fit"] = Worker(self.core.identify, self.NICENESS["fit"])
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
-        # Fits and diagnoses take seconds: a lane that falls behind keeps the newest
-        # FIT_BACKLOG jobs and counts what it drops (reported on /diagnostics).
-        self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(FIT_BACKLOG)
+        # Fits and diagnoses take seconds: a lane that falls behind skips a push's earlier
+        # fits once its later phase is in, keeps the newest FIT_BACKLOG jobs and counts what
+        # it skips (reported on /diagnostics).
+        self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(
+            FIT_BACKLOG, supersedes=lambda new, old: new is not None and old is not None and supersedes(new[0], old[0]))
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
@@ -358,9 +360,10 @@ class EstimatorNode(Node):
             reasons.append(self.verdict)
         if self.open_params:
             reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
-        if self.fit_jobs.dropped:
-            reasons.append(f"{self.fit_jobs.dropped} whole-record fit(s) skipped: the fit lane fell behind the "
-                           f"pushes (it keeps the newest {FIT_BACKLOG})")
+        if self.fit_jobs.dropped or self.fit_jobs.superseded:
+            reasons.append(f"the fit lane fell behind the pushes: {self.fit_jobs.superseded} pull/keep fit(s) "
+                           f"skipped for their push's later phase, {self.fit_jobs.dropped} fit(s) skipped for "
+                           f"newer ones (it keeps the newest {FIT_BACKLOG})")
         if self.core.dropped_pushes:
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):

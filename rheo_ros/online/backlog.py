@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from typing import Generic, TypeVar
+from typing import Callable, Generic, TypeVar
 
 Item = TypeVar("Item")
 
@@ -14,18 +14,30 @@ class Backlog(Generic[Item]):
     drops the oldest waiting item and counts it (``dropped``). A lane slower than the
     pushes arriving (whole-record fits and diagnoses at a 10 x replay, or a robot probing
     faster than the fits run) then holds the newest work and bounded memory, not a queue
-    that grows for as long as the node runs."""
+    that grows for as long as the node runs.
 
-    def __init__(self, size: int) -> None:
+    ``supersedes(new, old)``: a waiting item that a new one makes pointless leaves when the
+    new one comes (counted in ``superseded``), before anything is dropped for room: a push's
+    release fit covers the data its pull and keep fits would, so a lane behind the pushes
+    spends itself on final estimates.
+    """
+
+    def __init__(self, size: int, supersedes: Callable[[Item, Item], bool] | None = None) -> None:
         if size < 1:
             raise ValueError(f"backlog size {size}: at least 1")
         self.size = size
+        self.supersedes = supersedes
         self.dropped = 0
+        self.superseded = 0
         self._items: deque[Item] = deque()
         self._ready = threading.Condition()
 
     def put(self, item: Item) -> None:
         with self._ready:
+            if self.supersedes is not None:
+                kept = deque(old for old in self._items if not self.supersedes(item, old))
+                self.superseded += len(self._items) - len(kept)
+                self._items = kept
             if len(self._items) >= self.size:
                 self._items.popleft()
                 self.dropped += 1

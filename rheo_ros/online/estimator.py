@@ -127,6 +127,16 @@ class Job:
     stale: tuple[str, ...] = ()
 
 
+PHASE_ORDER = {"pull": 0, "keep": 1, "release": 2}
+
+
+def supersedes(new: Job, old: Job) -> bool:
+    """Whether the whole-record fit of ``new`` makes that of ``old`` pointless: a later
+    phase of the same push (its record holds every sample the earlier one's does)."""
+    n, o = new.event, old.event
+    return n.experiment == o.experiment and PHASE_ORDER[n.name] > PHASE_ORDER[o.name]
+
+
 @dataclass
 class _Stream:
     """Samples of one topic in stamp order, trimmed from the front."""
