@@ -9,7 +9,7 @@ import pytest
 
 from rheo_ros.io.bag import bag_samples, read_bag
 from rheo_ros.online.config import EstimatorConfig
-from rheo_ros.online.estimator import Job, OnlineEstimator, estimate_bag, estimate_stream, supersedes
+from rheo_ros.online.estimator import Job, OnlineEstimator, estimate_bag, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.params import Setup, load_params
 from rheo_ros.record import RecordError, segment_stage
@@ -273,27 +273,28 @@ def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
 
 
 def test_a_push_s_release_fit_supersedes_its_waiting_pull_and_keep_fits():
-    """A fit lane behind the pushes: a release job takes the place of its own push's
-    waiting pull and keep jobs (its fit covers their data), not of another push's, and
-    only then is the oldest dropped for room."""
+    """The estimator node's fit lane behind the pushes: a release job takes the place of
+    its own push's waiting pull and keep jobs (its fit covers their data), not of another
+    push's, and only then is the oldest dropped for room. A release without a closed form
+    starts from the keep's fit, so it supersedes nothing."""
+    from rheo_ros.nodes.estimator import EstimatorNode
     from rheo_ros.online.backlog import Backlog
 
-    def job(experiment: int, phase: str):
-        return (Job(PhaseEvent(experiment, phase, 0.0, 1.0, 1.0, 10), None, ()), None, 0.0)
+    def job(experiment: int, phase: str, closed=None):
+        return (Job(PhaseEvent(experiment, phase, 0.0, 1.0, 1.0, 10), None, ()), closed, 0.0)
 
-    lane = Backlog(3, supersedes=lambda new, old: new is not None and old is not None and supersedes(new[0], old[0]))
+    def waiting(lane):
+        return [(j.event.experiment, j.event.name) for j, _, _ in lane._items]
+
+    lane = Backlog(3, supersedes=EstimatorNode._supersedes)
     for item in [job(1, "pull"), job(1, "keep"), job(2, "pull"), job(1, "release"), job(2, "keep")]:
         lane.put(item)
-    assert [(j.event.experiment, j.event.name) for j, _, _ in lane._items] == [(1, "release"), (2, "keep")]
+    assert waiting(lane) == [(1, "release"), (2, "keep")]
     assert (lane.superseded, lane.dropped) == (3, 0)
-    for item in [job(3, "pull"), job(4, "pull")]:
+    for item in [job(3, "keep"), job(3, "release", RecordError("no closed form")), job(4, "pull")]:
         lane.put(item)
-    assert [(j.event.experiment, j.event.name) for j, _, _ in lane._items] == [(2, "keep"), (3, "pull"), (4, "pull")]
-    assert (lane.superseded, lane.dropped) == (3, 1)
-    lane.put(None)   # the lane's stop sign supersedes nothing
-    assert len(lane) == 3 and lane.dropped == 2
-
-
+    assert waiting(lane) == [(3, "keep"), (3, "release"), (4, "pull")]
+    assert (lane.superseded, lane.dropped) == (3, 2)
 
 
 def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when_killed():

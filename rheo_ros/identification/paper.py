@@ -492,6 +492,9 @@ def solve_node_equations(
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             sol = least_squares(residuals, x0, jac=jacobian, method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
     c2, eta, gamma = (float(v) for v in unpack(sol.x))
+    if not (np.isfinite([c2, eta, gamma]).all() and np.isfinite(sol.fun).all()):
+        raise RecordError(f"{record.source}: markers: the node equations (14-17) have no finite solution "
+                          f"(c2 {c2:.3g}, c1c2/(c1+c2) {eta:.3g})")
     if eta >= c2:
         raise RecordError(f"{record.source}: force: jump too large for the three-element model (c1c2/(c1+c2) >= c2)")
     c1 = eta * c2 / (c2 - eta)

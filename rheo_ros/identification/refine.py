@@ -310,11 +310,13 @@ def refine(
         cov[free, free] += np.where(loose, 0.0, sys_std**2)
         systematic = {f"discretisation_{n}": float(v) for n, v in zip(names, sys_std)}
     rf, rm = problem.group_rms(params)
-    # -2 log-likelihood with each group's noise at its ML value (its residuals' RMS), constants
-    # dropped: fits with different weights (each estimates its own) compare on this, not on cost.
+    # -2 log-likelihood (constants dropped) at the noise levels the fit converged on (the
+    # weights after the last pass, which may have moved them after the last solve): fits that
+    # each estimated their own weights compare on this, not on cost; it holds every term the
+    # fit minimises (censored readings, the clocks' prior).
     counts = np.append(problem.live_counts, problem.marker_count)
-    spread = np.append(rf, rm)
-    deviance = float(np.sum(np.where(counts > 0, counts * np.log(np.maximum(spread, 1e-300) ** 2), 0.0)))
+    sigma = np.append(np.broadcast_to(problem.force_std, (record.mesh.cols,)), problem.marker_std)
+    deviance = float(np.sum(counts * 2.0 * np.log(sigma)) + np.sum(problem.residuals(params) ** 2))
     # NaN where the data show no noise (a noise-free simulation): no misfit figure then.
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.append(rf, rm) / np.append(noise.force_std, noise.marker_std)

@@ -115,7 +115,7 @@ class EstimatorNode(Node):
         # fits once its later phase is in, keeps the newest FIT_BACKLOG jobs and counts what
         # it skips (reported on /diagnostics).
         self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(
-            FIT_BACKLOG, supersedes=lambda new, old: new is not None and old is not None and supersedes(new[0], old[0]))
+            FIT_BACKLOG, supersedes=self._supersedes)
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
@@ -204,6 +204,14 @@ class EstimatorNode(Node):
             self.results_ready.trigger()
         except InvalidHandle:
             pass
+
+    @staticmethod
+    def _supersedes(new: tuple[Job, identified.Estimate | RecordError, float] | None,
+                    old: tuple[Job, identified.Estimate | RecordError, float] | None) -> bool:
+        """A fit job that makes a waiting one pointless: a later phase of the same push with
+        a closed form to start from (one without starts from the earlier phase's fit)."""
+        return (new is not None and old is not None and not isinstance(new[1], RecordError)
+                and supersedes(new[0], old[0]))
 
     def _failed(self, job: Job, exc: Exception) -> None:
         e = job.event

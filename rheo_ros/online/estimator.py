@@ -213,22 +213,30 @@ class PhaseIdentifier:
         """
         rec = job.record
         fits = [refine(rec, start, forward=self.forward)]
-        if self.undetermined(rec, start):
-            fits.append(refine(rec, self._relaxation_in_view(rec, fallback or start), forward=self.forward))
-        fit = min(fits, key=lambda f: f.residual_rms["deviance"])
+        in_view = self._relaxation_in_view(rec, fallback or start)
+        if self.undetermined(rec, start) and in_view.params != start.params:
+            try:
+                fits.append(refine(rec, in_view, forward=self.forward))
+            except (ValueError, np.linalg.LinAlgError):
+                pass   # the fit from the start stands
+        # A NaN deviance (a non-finite prediction) never wins.
+        fit = min(fits, key=lambda f: np.nan_to_num(f.residual_rms["deviance"], nan=np.inf))
         if fit is not fits[0]:
             gain = fits[0].residual_rms["deviance"] - fit.residual_rms["deviance"]
             note = "; ".join(filter(None, [note, f"fit from a start relaxing within the record ({gain:.3g} lower "
-                                                 "deviance than from the undetermined closed form)"]))
+                                                 "deviance than from the undetermined start)"]))
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
         return self._update(job.event, rec, fit, self._relaxation_unseen(rec, fit)), fit
 
     @staticmethod
     def _relaxation_in_view(rec: Record, est: Estimate) -> Estimate:
-        """``est`` with c2 lowered, if need be, so that the relaxation time (c1 + c2) / E
-        is the record's length."""
+        """``est`` with c2 lowered, if need be, so that the relaxation time (c1 + c2) / E is
+        the record's length (c1 / E plus that length where c1 alone takes longer); ``est``
+        itself where its values are not finite and positive."""
         p = est.params
+        if not all(np.isfinite(p[n]) and p[n] > 0 for n in ("E", "c1", "c2")):
+            return est
         span = float(rec.force_t[-1] - rec.profile().t_pull_start)
         c2 = p["E"] * span - p["c1"]
         c2 = c2 if c2 > 0 else p["E"] * span
