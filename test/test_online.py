@@ -272,11 +272,11 @@ def test_a_lane_that_falls_behind_keeps_the_newest_jobs_and_counts_the_rest():
         Backlog(0)
 
 
-def test_a_push_s_release_fit_supersedes_its_waiting_pull_and_keep_fits():
-    """The estimator node's fit lane behind the pushes: a release job takes the place of
-    its own push's waiting pull and keep jobs (its fit covers their data), not of another
-    push's, and only then is the oldest dropped for room. A release without a closed form
-    starts from the keep's fit, so it supersedes nothing."""
+def test_a_full_fit_lane_skips_the_fits_a_later_phase_of_their_push_covers():
+    """The estimator node's fit lane behind the pushes: to make room it skips first a
+    waiting pull or keep fit whose push's later phase is waiting too (its fit covers their
+    data), the oldest job only if there is none; a lane with room skips nothing. A release
+    without a closed form starts from the keep's fit, so it covers nothing."""
     from rheo_ros.nodes.estimator import EstimatorNode
     from rheo_ros.online.backlog import Backlog
 
@@ -286,15 +286,25 @@ def test_a_push_s_release_fit_supersedes_its_waiting_pull_and_keep_fits():
     def waiting(lane):
         return [(j.event.experiment, j.event.name) for j, _, _ in lane._items]
 
-    lane = Backlog(3, supersedes=EstimatorNode._supersedes)
-    for item in [job(1, "pull"), job(1, "keep"), job(2, "pull"), job(1, "release"), job(2, "keep")]:
+    lane = Backlog(4, supersedes=EstimatorNode._supersedes)
+    for item in [job(1, "pull"), job(1, "keep"), job(2, "pull"), job(1, "release")]:
         lane.put(item)
-    assert waiting(lane) == [(1, "release"), (2, "keep")]
-    assert (lane.superseded, lane.dropped) == (3, 0)
-    for item in [job(3, "keep"), job(3, "release", RecordError("no closed form")), job(4, "pull")]:
-        lane.put(item)
-    assert waiting(lane) == [(3, "keep"), (3, "release"), (4, "pull")]
-    assert (lane.superseded, lane.dropped) == (3, 2)
+    assert waiting(lane) == [(1, "pull"), (1, "keep"), (2, "pull"), (1, "release")]
+    assert (lane.superseded, lane.dropped) == (0, 0)
+    lane.put(job(2, "keep"))
+    lane.put(job(2, "release"))
+    assert waiting(lane) == [(2, "pull"), (1, "release"), (2, "keep"), (2, "release")]
+    assert (lane.superseded, lane.dropped) == (2, 0)
+    lane.put(job(3, "pull"))
+    lane.put(job(3, "keep"))
+    assert waiting(lane) == [(1, "release"), (2, "release"), (3, "pull"), (3, "keep")]
+    assert (lane.superseded, lane.dropped) == (4, 0)
+    lane.put(job(3, "release", RecordError("no closed form")))
+    assert waiting(lane) == [(1, "release"), (2, "release"), (3, "keep"), (3, "release")]
+    assert (lane.superseded, lane.dropped) == (5, 0)
+    lane.put(job(4, "pull"))
+    assert waiting(lane) == [(2, "release"), (3, "keep"), (3, "release"), (4, "pull")]
+    assert (lane.superseded, lane.dropped) == (5, 1)
 
 
 def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when_killed():

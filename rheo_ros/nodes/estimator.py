@@ -111,9 +111,9 @@ class EstimatorNode(Node):
         if self.core.config.refine:
             self.workers["fit"] = Worker(self.core.identify, self.NICENESS["fit"])
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
-        # Fits and diagnoses take seconds: a lane that falls behind skips a push's earlier
-        # fits once its later phase is in, keeps the newest FIT_BACKLOG jobs and counts what
-        # it skips (reported on /diagnostics).
+        # Fits and diagnoses take seconds: a lane that falls behind keeps FIT_BACKLOG jobs,
+        # skipping first a push's earlier fits that its later phase's covers, and counts
+        # what it skips (reported on /diagnostics).
         self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(
             FIT_BACKLOG, supersedes=self._supersedes)
         # Results go back to the executor's thread to be published: rclpy entities are
@@ -208,8 +208,9 @@ class EstimatorNode(Node):
     @staticmethod
     def _supersedes(new: tuple[Job, identified.Estimate | RecordError, float] | None,
                     old: tuple[Job, identified.Estimate | RecordError, float] | None) -> bool:
-        """A fit job that makes a waiting one pointless: a later phase of the same push with
-        a closed form to start from (one without starts from the earlier phase's fit)."""
+        """Whether fit job ``new`` makes the waiting ``old`` pointless: a later phase of the
+        same push with a closed form to start from (one without starts from the earlier
+        phase's fit)."""
         return (new is not None and old is not None and not isinstance(new[1], RecordError)
                 and supersedes(new[0], old[0]))
 
@@ -369,9 +370,9 @@ class EstimatorNode(Node):
         if self.open_params:
             reasons.append("not identifiable yet: " + "; ".join(f"{n}: {r}" for n, r in self.open_params.items()))
         if self.fit_jobs.dropped or self.fit_jobs.superseded:
-            reasons.append(f"the fit lane fell behind the pushes: {self.fit_jobs.superseded} pull/keep fit(s) "
-                           f"skipped for their push's later phase, {self.fit_jobs.dropped} fit(s) skipped for "
-                           f"newer ones (it keeps the newest {FIT_BACKLOG})")
+            reasons.append(f"the fit lane fell behind the pushes (it keeps {FIT_BACKLOG} jobs): "
+                           f"{self.fit_jobs.superseded} pull/keep fit(s) skipped for their push's later phase, "
+                           f"{self.fit_jobs.dropped} older fit(s) skipped")
         if self.core.dropped_pushes:
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):

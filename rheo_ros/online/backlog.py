@@ -11,15 +11,16 @@ Item = TypeVar("Item")
 
 class Backlog(Generic[Item]):
     """First in, first out, at most ``size`` items waiting: putting into a full backlog
-    drops the oldest waiting item and counts it (``dropped``). A lane slower than the
+    drops a waiting item and counts it. A lane slower than the
     pushes arriving (whole-record fits and diagnoses at a 10 x replay, or a robot probing
     faster than the fits run) then holds the newest work and bounded memory, not a queue
     that grows for as long as the node runs.
 
-    ``supersedes(new, old)``: a waiting item that a new one makes pointless leaves when the
-    new one comes (counted in ``superseded``), before anything is dropped for room: a push's
-    release fit covers the data its pull and keep fits would, so a lane behind the pushes
-    spends itself on final estimates.
+    ``supersedes(newer, older)``: when room is needed, a waiting item that a newer one
+    makes pointless leaves first (counted in ``superseded``), the oldest only if there is
+    none (``dropped``): a push's release fit covers the data its pull and keep fits would,
+    so a lane behind the pushes spends itself on final estimates. A lane keeping up skips
+    nothing.
     """
 
     def __init__(self, size: int, supersedes: Callable[[Item, Item], bool] | None = None) -> None:
@@ -34,15 +35,26 @@ class Backlog(Generic[Item]):
 
     def put(self, item: Item) -> None:
         with self._ready:
-            if self.supersedes is not None:
-                kept = deque(old for old in self._items if not self.supersedes(item, old))
-                self.superseded += len(self._items) - len(kept)
-                self._items = kept
             if len(self._items) >= self.size:
-                self._items.popleft()
-                self.dropped += 1
+                victim = self._superseded(item)
+                if victim is None:
+                    self._items.popleft()
+                    self.dropped += 1
+                else:
+                    del self._items[victim]
+                    self.superseded += 1
             self._items.append(item)
             self._ready.notify()
+
+    def _superseded(self, item: Item) -> int | None:
+        """Index of the oldest waiting item that a newer one (or ``item``) supersedes."""
+        if self.supersedes is None:
+            return None
+        waiting = list(self._items) + [item]
+        for i, old in enumerate(waiting[:-1]):
+            if any(self.supersedes(newer, old) for newer in waiting[i + 1:]):
+                return i
+        return None
 
     def get(self) -> Item:
         """The oldest waiting item; blocks until there is one."""

@@ -199,21 +199,21 @@ class PhaseIdentifier:
             return None, exc
         return self._update(e, rec, est), est
 
-    def fit(self, job: Job, start: Estimate, note: str = "", fallback: Estimate | None = None
-            ) -> tuple[Update, Estimate]:
+    def fit(self, job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
         """The whole-record fit of the job's data from ``start``, checked for a relaxation
         the data do not show; ``note`` goes in front of the fit's message.
 
         Where ``start`` leaves a parameter undetermined (an ill-posed closed form: its raw
-        values are wherever its search stopped), the fit also runs from a start whose
-        relaxation shows within the record (``fallback``, this push's previous fit, or
-        else ``start``, with c2 lowered to that) and the more likely of the two is kept.
-        A slower start can strand the fit where c2 has no gradient (seen: c2 1.7e14
-        ends at c2 -> inf, c1 3.8 std off; from c2 <= 1e12 every start reaches the optimum).
+        values are wherever its search stopped), the fit also runs from ``start`` with c2
+        lowered so that the relaxation shows within the record, and the more likely of the
+        two is kept. A slower start can strand the fit where c2 has no gradient (seen: c2
+        1.7e14 ends at c2 -> inf, c1 3.8 std off; from c2 <= 1e12 every start tried reaches
+        the optimum). Both starts come from the job alone: the result does not depend on
+        which earlier fits a lane behind the pushes skipped.
         """
         rec = job.record
         fits = [refine(rec, start, forward=self.forward)]
-        in_view = self._relaxation_in_view(rec, fallback or start)
+        in_view = self._relaxation_in_view(rec, start)
         if self.undetermined(rec, start) and in_view.params != start.params:
             try:
                 fits.append(refine(rec, in_view, forward=self.forward))
@@ -504,10 +504,9 @@ class OnlineEstimator:
             yield self.fit(job, closed)
 
     def fit(self, job: Job, closed: Estimate | RecordError,
-            run: Callable[[Job, Estimate, str, Estimate | None], tuple[Update, Estimate]] | None = None) -> Update:
+            run: Callable[[Job, Estimate, str], tuple[Update, Estimate]] | None = None) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
-        no solution, from this push's previous fit (and from both where the closed form
-        leaves a parameter undetermined: ``PhaseIdentifier.fit``).
+        no solution, from this push's previous fit.
 
         Args:
             closed: the job's closed-form estimate, or why it has none.
@@ -518,12 +517,12 @@ class OnlineEstimator:
         """
         e = job.event
         note = ""
-        previous = self._fits.get(e.experiment)
         if isinstance(closed, RecordError):
+            previous = self._fits.get(e.experiment)
             if previous is None:
                 raise closed
-            closed, note, previous = previous, f"closed form failed ({closed}); fit started from the previous update", None
-        update, fit = (run or self.identify.fit)(job, closed, note, previous)
+            closed, note = previous, f"closed form failed ({closed}); fit started from the previous update"
+        update, fit = (run or self.identify.fit)(job, closed, note)
         self._fits = {e.experiment: fit}
         return update
 
