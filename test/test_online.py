@@ -305,6 +305,9 @@ def test_a_full_fit_lane_skips_the_fits_a_later_phase_of_their_push_covers():
     lane.put(job(4, "pull"))
     assert waiting(lane) == [(2, "release"), (3, "keep"), (3, "release"), (4, "pull")]
     assert (lane.superseded, lane.dropped) == (5, 1)
+    # What the lane asks before a diagnosis: is a newer push's release fit waiting?
+    assert lane.holds(lambda item: item[0].event == PhaseEvent(3, "release", 0.0, 1.0, 1.0, 10))
+    assert not lane.holds(lambda item: item[0].event.experiment == 1)
 
 
 def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when_killed():

@@ -100,6 +100,7 @@ class EstimatorNode(Node):
         self.open_params: dict[str, str] = {}
         self.predicted_at: dict[str, float] = {}
         self.updates = 0
+        self.skipped_diagnoses = 0
         # Latency from the message that completed a phase to the update's publication; of
         # that the closed form's round trip through its worker process, and of that its
         # computation (the rest: the transfer, and the lanes' queues and the executor).
@@ -258,6 +259,11 @@ class EstimatorNode(Node):
                                f"{', '.join(TOPICS[s] for s in job.stale)} (stale)") if job.stale else ""
             fit = self.core.last_fit(e.experiment)
             if e.name == "release" and self.core.config.diagnose and fit is not None:
+                if self.fit_jobs.holds(lambda item: item is not None and item[0].event.name == "release"):
+                    # Seconds of work on a push the robot has moved on from, while a newer
+                    # push's final estimate waits: that one's diagnosis is the one to have.
+                    self.skipped_diagnoses += 1
+                    continue
                 try:
                     self._hand_out(self._in_worker("fit", "diagnose", job, fit), arrival)
                 except Exception as exc:
@@ -373,6 +379,8 @@ class EstimatorNode(Node):
             reasons.append(f"the fit lane fell behind the pushes (it keeps {FIT_BACKLOG} jobs): "
                            f"{self.fit_jobs.superseded} pull/keep fit(s) skipped for their push's later phase, "
                            f"{self.fit_jobs.dropped} older fit(s) skipped")
+        if self.skipped_diagnoses:
+            reasons.append(f"{self.skipped_diagnoses} diagnosis(es) skipped: a newer push's release fit was waiting")
         if self.core.dropped_pushes:
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):

@@ -63,6 +63,11 @@ class Backlog(Generic[Item]):
                 self._ready.wait()
             return self._items.popleft()
 
+    def holds(self, predicate: Callable[[Item], bool]) -> bool:
+        """Whether a waiting item satisfies ``predicate``."""
+        with self._ready:
+            return any(predicate(item) for item in self._items)
+
     def __len__(self) -> int:
         with self._ready:
             return len(self._items)
