@@ -481,16 +481,15 @@ def solve_node_equations(
     # trust-region search: the same optimum, the loop in compiled code (the release's
     # closed form runs after each push within its latency budget; trf's Python loop was
     # half of it). At a bound the logistic saturates and the search stops there.
-    overflowed = False
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        sol = least_squares(residuals, x0, jac=jacobian, method="lm", xtol=1e-10, ftol=1e-10, gtol=1e-10)
-    if overflowed or not np.all(np.isfinite(sol.x)):
-        # lm's unbounded steps left the finite range (measured once in 8 releases, on a
-        # push whose relaxation the data barely show): the trust-region search, whose
-        # steps stay within its region.
+    # Where lm's unbounded steps leave the finite range (measured once in 8 releases, on a
+    # push whose relaxation the data barely show): the trust-region search, whose steps
+    # stay within its region.
+    for method in ("lm", "trf"):
         overflowed = False
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            sol = least_squares(residuals, x0, jac=jacobian, method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10)
+            sol = least_squares(residuals, x0, jac=jacobian, method=method, xtol=1e-10, ftol=1e-10, gtol=1e-10)
+        if not overflowed and np.all(np.isfinite(sol.x)):
+            break
     c2, eta, gamma = (float(v) for v in unpack(sol.x))
     if not (np.isfinite([c2, eta, gamma]).all() and np.isfinite(sol.fun).all()):
         raise RecordError(f"{record.source}: markers: the node equations (14-17) have no finite solution "

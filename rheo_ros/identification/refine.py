@@ -295,12 +295,13 @@ def refine(
     edge = [n for n, flag in zip(names, loose) if flag]
     note = f"; not bounded by the data: {', '.join(edge)}" if edge else ""
     systematic: dict[str, float] = {}
+    at_fit = problem.residuals(params)   # with the weights after the last pass
     if discretisation and bounded.any():
         # The distance to the continuum: the parameters' shifts on meshes 2 and 4 times as
         # fine (one Gauss-Newton step each from the fit, J dx = -(r_finer - r)), and the
         # geometric tail beyond them at DISCRETISATION_RATIO per halving.
         finer = problem.forward.finer()
-        r = [problem.residuals(params), replace(problem, forward=finer).residuals(params),
+        r = [at_fit, replace(problem, forward=finer).residuals(params),
              replace(problem, forward=finer.finer()).residuals(params)]
         dx = np.zeros((len(names), 2))
         dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([r[1] - r[0], r[2] - r[1]]),
@@ -316,7 +317,7 @@ def refine(
     # fit minimises (censored readings, the clocks' prior).
     counts = np.append(problem.live_counts, problem.marker_count)
     sigma = np.append(np.broadcast_to(problem.force_std, (record.mesh.cols,)), problem.marker_std)
-    deviance = float(np.sum(counts * 2.0 * np.log(sigma)) + np.sum(problem.residuals(params) ** 2))
+    deviance = float(np.sum(counts * 2.0 * np.log(sigma)) + at_fit @ at_fit)
     # NaN where the data show no noise (a noise-free simulation): no misfit figure then.
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.append(rf, rm) / np.append(noise.force_std, noise.marker_std)

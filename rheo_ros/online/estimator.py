@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rheo_ros.diagnosis.compare import PHASES
 from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, discover, fit_model, polish
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
@@ -127,14 +128,11 @@ class Job:
     stale: tuple[str, ...] = ()
 
 
-PHASE_ORDER = {"pull": 0, "keep": 1, "release": 2}
-
-
 def supersedes(new: Job, old: Job) -> bool:
     """Whether the whole-record fit of ``new`` makes that of ``old`` pointless: a later
     phase of the same push (its record holds every sample the earlier one's does)."""
     n, o = new.event, old.event
-    return n.experiment == o.experiment and PHASE_ORDER[n.name] > PHASE_ORDER[o.name]
+    return n.experiment == o.experiment and PHASES.index(n.name) > PHASES.index(o.name)
 
 
 @dataclass
@@ -213,10 +211,11 @@ class PhaseIdentifier:
         """
         rec = job.record
         fits = [refine(rec, start, forward=self.forward)]
-        in_view = self._relaxation_in_view(rec, start)
-        if self.undetermined(rec, start) and in_view.params != start.params:
+        if self.undetermined(rec, start):
+            in_view = self._relaxation_in_view(rec, start)
             try:
-                fits.append(refine(rec, in_view, forward=self.forward))
+                if in_view.params != start.params:
+                    fits.append(refine(rec, in_view, forward=self.forward))
             except (ValueError, np.linalg.LinAlgError):
                 pass   # the fit from the start stands
         # A NaN deviance (a non-finite prediction) never wins.
