@@ -26,7 +26,7 @@ setup(
     entry_points={
         # Every executable `ros2 run rheo_ros <name>` finds (colcon installs them in lib/rheo_ros).
         "console_scripts": [
-            "rheo = rheo_ros.cli:main",
+            "rheo = rheo_ros.app.cli:main",
             "stage = rheo_ros.nodes.stage:main",
             "simulator = rheo_ros.nodes.simulator:main",
             "segmenter = rheo_ros.nodes.segmenter:main",

@@ -6,7 +6,7 @@ Layers: ``models`` (rheological elements, effects), ``fe`` (the paper's FE model
 ROS.
 
 ``rheo_ros.analyze(bag, effects=[...])`` is the model-discovery loop in one call
-(``rheo_ros.diagnosis.analyze.analyze``).
+(``rheo_ros.app.analyze.analyze``).
 """
 
 from typing import Any
@@ -15,7 +15,7 @@ __version__ = "0.1.0"
 
 
 def analyze(*args: Any, **kwargs: Any) -> Any:
-    """``rheo_ros.diagnosis.analyze.analyze``: imported on first use (numpy, scipy, the FE)."""
-    from rheo_ros.diagnosis.analyze import analyze as run
+    """``rheo_ros.app.analyze.analyze``: imported on first use (numpy, scipy, the FE)."""
+    from rheo_ros.app.analyze import analyze as run
 
     return run(*args, **kwargs)

@@ -1,5 +1,5 @@
 import sys
 
-from rheo_ros.cli import main
+from rheo_ros.app.cli import main
 
 sys.exit(main())

@@ -6,7 +6,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rheo_ros.models.response import Program
+# The phases of a push, in order, and every stretch of a record: "before" is before the
+# stage touches the specimen. One vocabulary for the segmenter, the fits, the comparison,
+# the effects' footprints and the reports.
+PUSH_PHASES = ("pull", "keep", "release")
+PHASES = ("before", *PUSH_PHASES)
+
 
 @dataclass(frozen=True)
 class Phase:
@@ -17,10 +22,15 @@ class Phase:
 
 @dataclass(frozen=True)
 class StageProfile:
-    """Stage motion (contract defaults): push ``depth`` (m) at ``velocity`` (m/s), hold
-    ``keep_time`` (s), then retract at ``retract_speed`` (m/s; ``inf``: the stage
-    leaves at once, as in the paper); ``start_delay`` before contact and
-    ``release_time`` recorded after release (s)."""
+    """Stage motion: push ``depth`` (m) at ``velocity`` (m/s), hold ``keep_time`` (s),
+    then retract at ``retract_speed`` (m/s; ``inf``: the stage leaves at once);
+    ``start_delay`` before contact and ``release_time`` recorded after release (s).
+
+    The defaults are the paper's idealised experiment, instant release included (the
+    benches' and tests' noise-free cases rely on it). The package's default experiment
+    is the parameters table's ``stage.*`` (``rheo_ros.config.table``, a layer above):
+    the same but ``stage.retract_speed`` 0.02 m/s, a stage that can really move
+    (``test_config_table.py`` holds the two together)."""
 
     depth: float = 0.010
     velocity: float = 0.0005
@@ -92,14 +102,14 @@ class StageProfile:
         return [(self.t_pull_start, 0.0), (self.t_pull_end, self.depth), (self.t_keep_end, self.depth),
                 (t_back, 0.0)]
 
-    def program(self) -> Program:
-        """The top-face displacement program (m) for the exact model response; the
-        specimen follows a retracting stage while it presses on it."""
-        return Program.push_hold_release(self.depth, self.pull_time, self.keep_time, self.t_pull_start,
-                                         self.retract_speed)
-
 
 def sample_times(t_end: float, rate: float) -> np.ndarray:
     """Sample times 0, 1/rate, ... up to ``t_end`` inclusive (s)."""
     n = int(np.floor(t_end * rate + 1e-9))
     return np.arange(n + 1) / rate
+
+
+def phase_of(t: np.ndarray, profile: StageProfile) -> np.ndarray:
+    """Index into ``PHASES`` of each time ``t`` (s)."""
+    edges = [profile.t_pull_start, profile.t_pull_end, profile.t_keep_end]
+    return np.searchsorted(edges, np.asarray(t), side="right")

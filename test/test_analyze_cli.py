@@ -11,8 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-BAGS = Path(__file__).resolve().parent.parent / "bags"
+from conftest import BAGS
 
 
 def rheo(*args: str) -> subprocess.CompletedProcess:

@@ -2,21 +2,20 @@
 
 import shutil
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import BAGS
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from rheo_ros.identification.paper import identify_paper
-from rheo_ros.io.bag import read_bag, read_params, simulate_to_bag
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.io.bag import BagError, read_bag, read_params
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
-from rheo_ros.models.response import respond
-from rheo_ros.params import Setup, load_params
-from rheo_ros.record import RecordError
+from rheo_ros.models.response import respond, stage_program
 
-BAGS = Path(__file__).resolve().parents[1] / "bags"
 NAMES = sorted(p.stem for p in (BAGS / "params").glob("*.yaml"))
 TOPICS = (STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC)
 
@@ -89,7 +88,7 @@ def test_same_seed_same_bag_other_seed_other_noise(tmp_path):
 @pytest.mark.parametrize("name", ["table_I_long", "table_I_short"])
 def test_table_i_bags_identify_within_001_percent(name):
     rec = read_bag(BAGS / name).record
-    est = identify_paper(rec)
+    est = from_final_displacement(rec)
     errors = est.relative_errors({"E": 2.0, "c1": 8.0, "c2": 40.0})
     assert max(abs(e) for e in errors.values()) < 0.01, errors
 
@@ -97,17 +96,17 @@ def test_table_i_bags_identify_within_001_percent(name):
 def test_uniaxial_simulator_output_matches_exact_model_response():
     params = load_params(BAGS / "params" / "table_I_short.yaml")
     setup = Setup(params)
-    from rheo_ros.simulator import simulate_run
+    from rheo_ros.rig.simulator import simulate_run
 
     run = simulate_run(setup, 0)
     force = setup.tactile.nodal_forces(run.tactile).sum(axis=1)   # unit block: total force = stress
-    exact = respond(setup.model().rheology(), setup.profile.program(), run.tactile_t)
+    exact = respond(setup.model().rheology(), stage_program(setup.profile), run.tactile_t)
     edges = [p.t_start for p in setup.profile.phases]
     ok = np.abs(run.tactile_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.05
     # float32 pressures (6e-8 relative) and the block's inertia (density 1e-3): 1e-5 of the peak.
     np.testing.assert_allclose(force[ok], exact.stress[ok], atol=1e-5 * exact.stress.max())
     top = -(run.markers[:, -1, 1] - setup.mesh.nodes[-1, 1])
-    exact_m = respond(setup.model().rheology(), setup.profile.program(), run.marker_t).strain
+    exact_m = respond(setup.model().rheology(), stage_program(setup.profile), run.marker_t).strain
     okm = np.abs(run.marker_t[:, None] - np.array(edges)[None]).min(axis=1) > 0.15
     np.testing.assert_allclose(top[okm], exact_m[okm], atol=1e-5 * 0.5)
 
@@ -118,7 +117,7 @@ def test_bag_without_a_topic_is_a_one_line_error(tmp_path):
 
     with BagWriter(tmp_path / "bag", setup.params, topics={STAGE_TOPIC: "sensor_msgs/msg/JointState"}):
         pass
-    with pytest.raises(RecordError, match=r"bag: /stage/joint_states: no messages"):
+    with pytest.raises(BagError, match=r"bag: /stage/joint_states: no messages"):
         read_bag(tmp_path / "bag")
 
 
@@ -127,12 +126,12 @@ def test_truncated_bag_is_a_one_line_error(tmp_path):
     mcap_file = next((tmp_path / "bag").glob("*.mcap"))
     data = mcap_file.read_bytes()
     mcap_file.write_bytes(data[: len(data) // 2])
-    with pytest.raises(RecordError, match=r"bag: cannot read bag"):
+    with pytest.raises(BagError, match=r"bag: cannot read bag"):
         read_bag(tmp_path / "bag")
 
 
 def test_not_a_bag_names_the_path(tmp_path):
-    with pytest.raises(RecordError, match="not a rosbag2 directory"):
+    with pytest.raises(BagError, match="not a rosbag2 directory"):
         read_bag(tmp_path)
 
 
@@ -146,13 +145,13 @@ def test_params_travel_in_the_bag_metadata():
 def test_refinement_through_the_sensor_path_recovers_the_material(name):
     """Noisy, dead-banded, quantised pressures and noisy markers, as a robot would record
     them, simulated on a 65 x 65 mesh and identified on the default 33 x 33."""
-    from rheo_ros.identification.refine import refine
-    from rheo_ros.params import Setup
+    from rheo_ros.config.setup import Setup
+    from rheo_ros.identification.fit import fit_record
 
     bag = read_bag(BAGS / name)
     rec = bag.record
     forward = Setup(bag.params).forward_model()
-    est = refine(rec, identify_paper(rec, forward=forward), forward=forward)
+    est = fit_record(rec, from_final_displacement(rec, forward=forward), forward=forward)
     truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
@@ -164,12 +163,12 @@ def test_uniaxial_block_bag_is_identified_within_four_std():
     and dead-banded: gamma from the markers' lateral motion, the forces blind to it.
     Measured: closed form E +1.3 %, gamma -4.1 % (two final seconds of noisy markers);
     fit within 0.041 % (c1 -3.3 std, the other parameters within 0.7 std)."""
-    from rheo_ros.identification.refine import refine
+    from rheo_ros.identification.fit import fit_record
 
     bag = read_bag(BAGS / "uniaxial_block")
     assert bag.params["geometry"] == "uniaxial" and bag.record.mesh.boundary.bottom == "frictionless"
     rec = bag.record
-    est = refine(rec, identify_paper(rec), forward=Setup(bag.params).forward_model())
+    est = fit_record(rec, from_final_displacement(rec), forward=Setup(bag.params).forward_model())
     truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
     for k, v in truth.items():
         assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])

@@ -1,29 +1,27 @@
 """Model against measurement: residual statistics per phase and signal, judged against
 the sensor noise the data show."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import BAGS
 
+from rheo_ros.config.setup import Setup
 from rheo_ros.diagnosis.compare import compare, ljung_box_p, systematic_windows
-from rheo_ros.identification.paper import identify_paper
-from rheo_ros.identification.refine import refine
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.identification.fit import fit_record
 from rheo_ros.io.bag import read_bag
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.params import Setup
-
-BAGS = Path(__file__).resolve().parent.parent / "bags"
 
 
 def fitted_comparison(name):
     bag = read_bag(BAGS / name)
     forward = Setup(bag.params).forward_model()
-    fit = refine(bag.record, identify_paper(bag.record, forward=forward), forward=forward)
-    p, r = fit.params, fit.residual_rms
+    fit = fit_record(bag.record, from_final_displacement(bag.record, forward=forward), forward=forward)
+    p, s = fit.params, fit.statistics
     model = Model(three_element(p["E"], p["c1"], p["c2"]))
-    return compare(bag.record, model, p["gamma"], forward, (r["tactile_delay_s"], r["marker_delay_s"]))
+    return compare(bag.record, model, p["gamma"], forward, (s.delay("tactile"), s.delay("marker")))
 
 
 def test_ljung_box_tells_white_noise_from_a_slow_structure():
@@ -65,7 +63,7 @@ def test_a_missing_relaxation_branch_shows_in_the_force_as_systematic_windows():
 def test_where_the_final_displacement_has_no_solution_the_pull_and_keep_solution_is_reported_and_said():
     from dataclasses import replace
 
-    from rheo_ros.diagnosis.analyze import closed_forms
+    from rheo_ros.identification.pipeline import closed_form
 
     bag = read_bag(BAGS / "clean_short_keep")
     rec = bag.record
@@ -75,11 +73,12 @@ def test_where_the_final_displacement_has_no_solution_the_pull_and_keep_solution
     late = rec.marker_t > rec.profile().t_keep_end
     markers = rec.markers.copy()
     markers[late] = 2 * rec.mesh.nodes - markers[late]
-    closed, starts, failed = closed_forms(replace(rec, markers=markers), forward)
-    assert closed.method == "paper_keep" and len(starts) == 2
+    result = closed_form("release", replace(rec, markers=markers), forward)
+    closed, failed = result.estimate, "; ".join(result.failed)
+    assert closed.method == "paper_keep" and len(result.starts) == 2
     assert "final displacement" in failed and "wrong sign" in failed and failed in closed.message
     # The pull and keep are untouched: E and c2 within 0.5 % of the truth (measured 0.02 %, 0.03 %).
     assert closed.params["E"] == pytest.approx(bag.params["material.E"], rel=5e-3)
     assert closed.params["c2"] == pytest.approx(bag.params["material.c2"], rel=5e-3)
-    untouched, _, none_failed = closed_forms(rec, forward)
-    assert none_failed == "" and untouched.method.startswith("paper_") and untouched.method != "paper_keep"
+    untouched = closed_form("release", rec, forward)
+    assert untouched.failed == () and untouched.estimate.method.startswith("paper_") and untouched.estimate.method != "paper_keep"

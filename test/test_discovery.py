@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import rheo_ros
-from rheo_ros.io.bag import simulate_to_bag
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, check_params
 from rheo_ros.models.effects import Effect, register_effect, unregister_effect
-from rheo_ros.params import Setup, check_params
 
 # Not the committed bags' clay: stiffer, more viscous, a shallower push, a shorter keep.
 # Short records keep the suite short; the simulator's mesh (49 x 49 nodes) is still finer

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from rheo_ros.params import Setup, load_params
-from rheo_ros.simulator import simulate_run
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.rig.simulator import simulate_run
 
 
 def run(effect: str | None):

@@ -9,7 +9,7 @@ from rheo_ros.fe.mesh import Boundary, Mesh, lame_per_unit_modulus
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Model, RelaxationBranch
 from rheo_ros.models.elements import three_element
-from rheo_ros.models.response import respond
+from rheo_ros.models.response import respond, stage_program
 
 TABLE_I = dict(E=2.0, c1=8.0, c2=40.0)
 
@@ -33,7 +33,7 @@ def test_uniaxial_fe_matches_exact_model_response(element):
     profile = StageProfile.from_times(0.5, 20.0, 20.0, start_delay=1.0, release_time=40.0)
     t = sample_times(profile.t_end, 50.0)
     fe = DynamicFE(mesh, element, gamma, density=1e-3, omega=1e3).simulate(profile, t)
-    exact = respond(element, profile.program(), t)
+    exact = respond(element, stage_program(profile), t)
     ok = away_from(t, [p.t_start for p in profile.phases], 0.05)
     peak = np.abs(exact.stress).max()
     # Force: unit block, so total force = stress; each node carries its share of the

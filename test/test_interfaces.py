@@ -18,10 +18,9 @@ from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
 from rheo_ros_interfaces.action import Identify
 from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 PKG = Path(__file__).resolve().parent.parent / "interfaces" / "rheo_ros_interfaces"
 NAN = float("nan")

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from rheo_ros.models.effects import (
-    Effect, Model, RelaxationBranch, SensorDrift, effect_class, register_effect, unregister_effect,
+    Effect,
+    Model,
+    RelaxationBranch,
+    SensorDrift,
+    effect_class,
+    register_effect,
+    unregister_effect,
 )
 from rheo_ros.models.elements import (
     Dashpot,

@@ -1,6 +1,5 @@
 """Stage and simulator nodes over real DDS, in separate processes, recorded by `rheo record`."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -10,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rheo_ros.io.bag import read_bag, read_params, simulate_to_bag
-from rheo_ros.params import Setup, load_params
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.io.bag import read_bag, read_params
 
 BIN = Path(sys.executable).parent
 PARAMS = """/**:
@@ -22,15 +22,8 @@ PARAMS = """/**:
 """
 
 
-def ros_env(slot: int) -> dict:
-    """Environment of a ROS graph of this test run: its own domain (one of five slots
-    per process id, all within Fast DDS's valid 0-232) on localhost only."""
-    domain = 1 + (os.getpid() % 40) * 5 + slot
-    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-
-
 @pytest.fixture(scope="module", params=["realtime", "fast"])
-def dds_run(request, tmp_path_factory):
+def dds_run(request, tmp_path_factory, ros_env):
     """Recorder, simulator and stage as three processes; the recorder stopped by SIGTERM.
 
     ``realtime``: the stage ticks on the wall clock. ``fast``: the simulator drives
@@ -40,7 +33,7 @@ def dds_run(request, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(request.param)
     params = tmp / "params.yaml"
     params.write_text(PARAMS + ("    simulator.clock: true\n" if fast else ""))
-    env = ros_env(int(fast))
+    env = ros_env()
     logs = {name: (tmp / f"{name}.log").open("w") for name in ("record", "simulator", "stage")}
     cmds = {
         "record": [str(BIN / "rheo"), "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
@@ -117,8 +110,8 @@ def test_recorded_bag_equals_the_directly_simulated_one_within_noise(dds_run):
     assert np.abs(ra.markers[ka] - rb.markers[kb]).max() < 0.5 * setup.camera.noise
 
 
-def test_record_without_publishers_fails_in_one_line(tmp_path):
-    env = ros_env(2)
+def test_record_without_publishers_fails_in_one_line(tmp_path, ros_env):
+    env = ros_env()
     out = subprocess.run([str(BIN / "rheo"), "record", "/nobody/here", "--out", str(tmp_path / "bag"),
                           "--discovery-timeout", "1"],
                          env=env, capture_output=True, text=True, timeout=60)
@@ -127,13 +120,13 @@ def test_record_without_publishers_fails_in_one_line(tmp_path):
     assert not (tmp_path / "bag").exists()
 
 
-def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path):
+def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path, ros_env):
     """SIGINT (Ctrl-C) mid-run: metadata written, every message readable by both readers."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     from rosbags.highlevel import AnyReader
 
-    env = ros_env(3)
+    env = ros_env()
     params = tmp_path / "params.yaml"
     params.write_text(PARAMS.replace("wait_for_subscribers: 2", "wait_for_subscribers: 1"))
     rec = subprocess.Popen([str(BIN / "rheo"), "record", "/stage/joint_states", "--out", str(tmp_path / "bag")],

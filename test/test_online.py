@@ -2,22 +2,21 @@
 
 import threading
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import BAGS, TRUTH
 
+from rheo_ros.app.analyze import estimate_bag
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.config.tuning import EstimatorConfig
 from rheo_ros.io.bag import bag_samples, read_bag
-from rheo_ros.online.config import EstimatorConfig
-from rheo_ros.online.estimator import Job, OnlineEstimator, estimate_bag, estimate_stream
+from rheo_ros.online.estimator import Job, OnlineEstimator, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
-from rheo_ros.params import Setup, load_params
 from rheo_ros.record import RecordError, segment_stage
-from rheo_ros.simulator import simulate_run
+from rheo_ros.rig.simulator import simulate_run
 
-BAGS = Path(__file__).resolve().parents[1] / "bags"
 NAMES = sorted(p.stem for p in (BAGS / "params").glob("*.yaml"))
-TRUTH = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
 SHORT_RUN = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 6.0, "stage.release_time": 30.0,
              "stage.start_delay": 1.0}
 
@@ -113,14 +112,22 @@ def clean_updates():
 
 
 def test_estimator_updates_after_each_phase_with_closed_form_then_fit(clean_updates):
-    _, updates, errors = clean_updates
+    _, every, errors = clean_updates
     assert errors == []
+    updates = [u for u in every if not u.interim]
     assert [(u.phase, u.method) for u in updates] == [
         ("pull", "paper_pull"), ("pull", "whole_record"), ("keep", "paper_keep"), ("keep", "whole_record"),
         ("release", "paper_short_time"), ("release", "whole_record")]
     assert [u.final for u in updates] == [False] * 5 + [True]
+    # The release (69.0-99.8 s) goes on for 30.8 s: interim updates (closed form, fit) at
+    # 10, 20 and 30 s of it (estimator.release_interval), before the final ones.
+    interim = [(u.method, round(u.stamp, 2)) for u in every if u.interim]
+    assert [m for m, _ in interim] == ["paper_short_time", "whole_record"] * 3 or [
+        m for m, _ in interim if m == "whole_record"] == ["whole_record"] * 3, interim
+    assert sorted({t for _, t in interim}) == pytest.approx([79.0, 89.0, 99.0], abs=0.021)
+    assert all("interim" in u.message and not u.final for u in every if u.interim)
     # Each update uses only the samples up to its phase's end.
-    stamps = [u.stamp for u in updates]
+    stamps = [u.stamp for u in every]
     assert stamps == sorted(stamps) and updates[0].stamp < 21.1 and updates[2].stamp < 69.1
 
 
@@ -129,7 +136,7 @@ def test_estimates_converge_on_the_truth_as_phases_complete(clean_updates):
     (65 x 65 against 33 x 33 nodes: not its own model). Tolerances: 4 reported std
     (noise and the mesh's discretisation error) and 0.2 % for the final fit; the pull's
     and keep's fits within 4 std."""
-    _, updates, _ = clean_updates
+    updates = [u for u in clean_updates[1] if not u.interim]
     final = updates[-1]
     for k, v in TRUTH.items():
         assert abs(final.params[k] - v) < 4 * final.std[k], (k, final.params[k], final.std[k])
@@ -180,7 +187,7 @@ def test_bad_samples_are_counted_not_fatal():
 def test_memory_stays_bounded_over_many_experiments():
     """Twenty pushes: the buffers hold one push and a window, not the history."""
     setup, run, force = simulated(SHORT_RUN)
-    est = OnlineEstimator(setup, config=replace(setup.estimator_config(), refine=False))
+    est = OnlineEstimator(setup, config=replace(setup.estimator_config(), fit=False, release_interval=0.0))
     span = run.stage_t[-1] + 1.0
     sizes, n_updates = [], 0
     for k in range(20):
@@ -237,16 +244,17 @@ def test_a_shallow_short_push_gets_a_closed_form_from_the_nodes_above_the_noise_
     assert abs(last.params["c1"] / TRUTH["c1"] - 1) < 0.01
 
 
-def test_without_refinement_the_release_closed_form_is_the_final_update(clean_updates):
-    """``estimator.refine: false``: the closed forms alone, the release's marked final
+def test_without_the_fit_the_release_closed_form_is_the_final_update(clean_updates):
+    """``estimator.fit: false``: the closed forms alone, the release's marked final
     (what the stage's /rheo/identify action waits for), with the same values as with
-    refinement (the closed form does not depend on the fits)."""
+    the fit (the closed form does not depend on the fits)."""
     bag = str(BAGS / "clean_short_keep")
     setup = Setup(read_bag(bag).params)
-    _, updates, errors = estimate_stream(OnlineEstimator(setup, config=EstimatorConfig(refine=False)),
+    _, updates, errors = estimate_stream(OnlineEstimator(setup, config=EstimatorConfig(fit=False)),
                                          bag_samples(bag))
     assert errors == []
-    assert [(u.phase, u.final) for u in updates] == [("pull", False), ("keep", False), ("release", True)]
+    assert [(u.phase, u.final, u.interim) for u in updates] == [
+        ("pull", False, False), ("keep", False, False), *[("release", False, True)] * 3, ("release", True, False)]
     closed = [u for u in clean_updates[1] if u.method != "whole_record"]
     for mine, theirs in zip(updates, closed):
         np.testing.assert_array_equal(mine.values, theirs.values)
@@ -280,7 +288,7 @@ def test_a_full_fit_lane_skips_the_fits_a_later_phase_of_their_push_covers():
     from rheo_ros.nodes.estimator import EstimatorNode
     from rheo_ros.online.backlog import Backlog
 
-    def job(experiment: int, phase: str, closed=None):
+    def job(experiment: int, phase: str, closed: object | None = "a closed form"):
         return (Job(PhaseEvent(experiment, phase, 0.0, 1.0, 1.0, 10), None, ()), closed, 0.0)
 
     def waiting(lane):
@@ -299,7 +307,7 @@ def test_a_full_fit_lane_skips_the_fits_a_later_phase_of_their_push_covers():
     lane.put(job(3, "keep"))
     assert waiting(lane) == [(1, "release"), (2, "release"), (3, "pull"), (3, "keep")]
     assert (lane.superseded, lane.dropped) == (4, 0)
-    lane.put(job(3, "release", RecordError("no closed form")))
+    lane.put(job(3, "release", None))   # no closed form
     assert waiting(lane) == [(1, "release"), (2, "release"), (3, "keep"), (3, "release")]
     assert (lane.superseded, lane.dropped) == (5, 0)
     lane.put(job(4, "pull"))
@@ -352,15 +360,15 @@ def test_a_relaxation_too_slow_to_see_is_undetermined_on_every_replay_pass(tmp_p
     and 4 reported the rate to 2 % and 25 %, and E 8692 and 14770 Pa (truth 33300)."""
     from rosbags.highlevel import AnyReader
 
+    from rheo_ros.app.simulate import simulate_to_bag
     from rheo_ros.bench.online import SHORT_RUN as BENCH_RUN
-    from rheo_ros.io.bag import simulate_to_bag
 
     setup = Setup({**load_params(None), **BENCH_RUN})
     simulate_to_bag(setup, 0, tmp_path / "bag")
     samples = list(bag_samples(str(tmp_path / "bag")))
     with AnyReader([tmp_path / "bag"]) as reader:   # rheo play --loop's shift: a pass and 10 ms
         span = reader.end_time - reader.start_time + 10_000_000
-    config = replace(setup.estimator_config(), refine=False)
+    config = replace(setup.estimator_config(), fit=False)
     for k in range(12):
         shifted = [(s, (round(t * 1e9) + k * span) * 1e-9, d) for s, t, d in samples]
         _, updates, _ = estimate_stream(OnlineEstimator(setup, config=config), shifted)

@@ -17,27 +17,21 @@ from rheo_ros_interfaces.action import Identify
 from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
 from sensor_msgs.msg import Image
 
-from rheo_ros.io.bag import simulate_to_bag
+from rheo_ros.app.analyze import estimate_bag
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, load_params, params_yaml
 from rheo_ros.io.messages import read_diagnosis, read_estimate
-from rheo_ros.online.estimator import estimate_bag
-from rheo_ros.params import Setup, load_params, params_yaml
 
 BIN = Path(sys.executable).parent
 SHORT_RUN = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 6.0, "stage.release_time": 30.0}
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def ros_env(slot: int) -> dict:
-    """Own domain per test process and slot (within 0-232), localhost only."""
-    domain = 201 + (os.getpid() % 6) * 5 + slot
-    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-
-
 class Graph:
     """Node processes of one test and an in-process probe node on their domain."""
 
-    def __init__(self, slot: int, tmp: Path) -> None:
-        self.env, self.tmp, self.procs = ros_env(slot), tmp, {}
+    def __init__(self, env: dict[str, str], tmp: Path) -> None:
+        self.env, self.tmp, self.procs = env, tmp, {}
         os.environ.update({k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -83,7 +77,7 @@ def short_bag(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def replay(short_bag, tmp_path_factory):
+def replay(short_bag, tmp_path_factory, ros_env):
     """A bag replayed over DDS into the segmenter and estimator nodes, twice."""
     diagnoses = []
     offline = estimate_bag(str(short_bag / "bag"), diagnoses=diagnoses)
@@ -91,7 +85,7 @@ def replay(short_bag, tmp_path_factory):
     runs = []
     for k in range(2):
         tmp = tmp_path_factory.mktemp(f"replay{k}")
-        g = Graph(k, tmp)
+        g = Graph(ros_env(), tmp)
         estimates, phases, verdicts = [], [], []
         g.node.create_subscription(Estimate, "/rheo/estimate", lambda m: estimates.append(read_estimate(m)), LATCHED)
         g.node.create_subscription(Diagnosis, "/rheo/diagnosis", lambda m: verdicts.append(read_diagnosis(m)),
@@ -138,10 +132,11 @@ def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
             assert ([(e["phase"], e["method"]) for e in got if lane(e["method"])]
                     == [(u.phase, u.method) for u in updates if lane(u.method)])
         assert got[-1]["final"] and updates[-1].final
-        by_key = {(e["phase"], e["method"]): e for e in got}
+        # Interim release updates share phase and method: the stamp tells them apart.
+        by_key = {(e["phase"], e["method"], round(e["stamp"], 6)): e for e in got}
         assert len(by_key) == len(got) == len(updates)
         for u in updates:
-            e = by_key[(u.phase, u.method)]
+            e = by_key[(u.phase, u.method, round(u.stamp, 6))]
             a = np.array(list(e["params"].values()))
             np.testing.assert_array_equal(np.isnan(a), np.isnan(u.values))
             ok = ~np.isnan(a)
@@ -186,8 +181,8 @@ def test_the_estimator_publishes_the_offline_diagnosis_after_release(replay):
         assert got["evidence"] == d.evidence and "is adequate" in got["evidence"]
 
 
-def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag, tmp_path):
-    g = Graph(2, tmp_path)
+def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag, tmp_path, ros_env):
+    g = Graph(ros_env(), tmp_path)
     statuses = []
     g.node.create_subscription(DiagnosticArray, "/diagnostics",
                                lambda m: statuses.extend(s for s in m.status if s.name.endswith("estimator")), 10)
@@ -214,12 +209,12 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
         g.close()
 
 
-def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path):
+def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, ros_env):
     """Stage waiting for goals, simulator on /clock, estimator: a goal gives feedback per
     update and the final whole-record estimate; a cancelled goal retracts the stage."""
     params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True}
     (tmp_path / "params.yaml").write_text(params_yaml(params))
-    g = Graph(3, tmp_path)
+    g = Graph(ros_env(), tmp_path)
     depths = []
     from sensor_msgs.msg import JointState
 
@@ -271,3 +266,42 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path):
     finally:
         client.destroy()
         g.close()
+
+
+def test_a_release_cut_short_by_silence_gets_its_final_estimate_and_diagnosis(tmp_path, ros_env):
+    """A bag that stops 5 s after the let-go (the specimen still recovering), played into
+    the segmenter and estimator, then silence: after ``estimator.stale_after`` both close
+    the release, the final estimate (equal to the offline core's, which closes it at the
+    end of the bag) and the diagnosis arrive, each with the cut-short warning."""
+    params = {**load_params(None), **SHORT_RUN, "stage.release_time": 5.0, "estimator.stale_after": 1.0}
+    simulate_to_bag(Setup(params), 4, tmp_path / "bag")
+    (tmp_path / "params.yaml").write_text(params_yaml(params))
+    diagnoses = []
+    _, updates, errors = estimate_bag(str(tmp_path / "bag"), diagnoses=diagnoses)
+    assert errors == [] and updates[-1].final and "cut short" in updates[-1].message
+    g = Graph(ros_env(), tmp_path)
+    estimates, phases, verdicts = [], [], []
+    g.node.create_subscription(Estimate, "/rheo/estimate", lambda m: estimates.append(read_estimate(m)), LATCHED)
+    g.node.create_subscription(Diagnosis, "/rheo/diagnosis", lambda m: verdicts.append(read_diagnosis(m)), LATCHED)
+    g.node.create_subscription(Phase, "/rheo/phase", phases.append, LATCHED)
+    try:
+        args = ["--ros-args", "--params-file", str(tmp_path / "params.yaml")]
+        g.start("estimator", *args)
+        g.start("segmenter", *args)
+        play = subprocess.run([str(BIN / "rheo"), "play", str(tmp_path / "bag"), "--rate", "5",
+                               "--wait-for-subscribers", "2"], env=g.env, capture_output=True, text=True, timeout=120)
+        assert play.returncode == 0, play.stderr
+        g.spin_until(lambda: any(e["final"] for e in estimates) and verdicts, 120,
+                     lambda: f"a final estimate and a diagnosis after the silence (got {len(estimates)} estimates, "
+                             f"{len(verdicts)} diagnoses)")
+        g.spin_until(lambda: any(p.name == "release" for p in phases), 10, "the segmenter's release")
+        final = next(e for e in estimates if e["final"])
+        assert "cut short" in final["message"] and "no message on any topic for 1 s" in final["message"]
+        np.testing.assert_allclose(list(final["params"].values()), updates[-1].values, rtol=1e-9)
+        (verdict,) = verdicts
+        assert "cut short" in verdict["evidence"]
+        assert verdict["missing_effects"] == list(diagnoses[0].missing_effects)
+        np.testing.assert_allclose(list(verdict["params"].values()), diagnoses[0].values, rtol=1e-9)
+    finally:
+        g.close()
+

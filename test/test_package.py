@@ -84,8 +84,8 @@ def test_package_xml_is_ament_python_format_3():
 def test_core_imports_no_ros():
     code = (
         "import sys, rheo_ros.models.elements, rheo_ros.models.response, rheo_ros.models.effects, "
-        "rheo_ros.fe.dynamic, rheo_ros.fe.quasistatic, rheo_ros.identification.paper, "
-        "rheo_ros.identification.refine, rheo_ros.cli; "
+        "rheo_ros.fe.dynamic, rheo_ros.fe.quasistatic, rheo_ros.identification.closed_form, "
+        "rheo_ros.identification.fit, rheo_ros.app.cli; "
         "print([m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosbags', 'mcap')])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -162,7 +162,7 @@ def test_message_schemas_cover_every_type_written_and_parse():
         ([], "material: {E: true}\n", "material.E: expected float"),
         ([], "stage: {keep_time: [1, 2]}\n", "stage.keep_time: expected float"),
         ([], "bogus: 1\n", "unknown parameter(s): bogus"),
-        (["--seed", "-1"], None, "simulator.seed and the sensor noises must not be negative"),
+        (["--seed", "-1"], None, "simulator.seed: -1; must not be negative"),
     ],
 )
 def test_simulate_refuses_bad_input_in_one_line(tmp_path, args, params, message):
@@ -188,7 +188,7 @@ def test_missing_params_file_and_empty_section_are_one_line_errors(tmp_path):
 
 
 def test_per_node_sections_are_merged_like_the_nodes_see_them(tmp_path):
-    from rheo_ros.params import parse_params
+    from rheo_ros.config.setup import parse_params
 
     text = "/**:\n  ros__parameters:\n    stage: {keep_time: 150}\nsimulator:\n  ros__parameters:\n    material: {E: 1.0e4}\n"
     params = parse_params(text)
@@ -197,7 +197,7 @@ def test_per_node_sections_are_merged_like_the_nodes_see_them(tmp_path):
 
 
 def test_config_file_documents_exactly_the_defaults():
-    from rheo_ros.params import DEFAULTS, PARAM_HELP, load_params
+    from rheo_ros.config.setup import DEFAULTS, PARAM_HELP, load_params
 
     assert load_params(REPO / "config" / "rheo_ros.yaml") == DEFAULTS
     undocumented = [k for k in DEFAULTS if not k.startswith("effects.") and k not in PARAM_HELP]

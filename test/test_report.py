@@ -11,7 +11,8 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from rheo_ros.diagnosis.analyze import Analysis, analyze
+from rheo_ros.app.analyze import analyze
+from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.reports.html import write_report
 
 CHROMIUM = Path("/usr/bin/chromium")

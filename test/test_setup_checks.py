@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rheo_ros.params import ParamsError, check_params, parse_params
+from rheo_ros.config.setup import ParamsError, check_params, parse_params
 from rheo_ros.sensors import TactileArray
 
 REPO = Path(__file__).resolve().parents[1]

@@ -2,19 +2,17 @@
 seeds, and closed forms that warn instead of failing where an estimate can be given."""
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import BAGS
 
 from rheo_ros.bench.calibration import run_case
+from rheo_ros.config.setup import Setup
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.identification.fit import fit_record
 from rheo_ros.identification.noise import difference_noise, sensor_noise
-from rheo_ros.identification.paper import identify_paper
-from rheo_ros.identification.refine import refine
 from rheo_ros.io.bag import read_bag
-from rheo_ros.params import Setup
-
-BAGS = Path(__file__).resolve().parent.parent / "bags"
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +23,7 @@ def clean_bag():
 def fit_bag(bag):
     setup = Setup(bag.params)
     forward = setup.forward_model()
-    return refine(bag.record, identify_paper(bag.record, forward=forward), forward=forward)
+    return fit_record(bag.record, from_final_displacement(bag.record, forward=forward), forward=forward)
 
 
 def test_sensor_noise_comes_from_the_live_readings(clean_bag):
@@ -46,12 +44,12 @@ def test_sensor_noise_comes_from_the_live_readings(clean_bag):
 
 def test_a_right_model_fits_to_the_sensor_noise_and_a_wrong_one_says_so(clean_bag):
     fit = fit_bag(clean_bag)
-    ratios = {k: v for k, v in fit.residual_rms.items() if k.startswith("fit_to_noise_")}
+    ratios = fit.statistics.fit_to_noise
     assert len(ratios) == 6 and all(0.9 < v < 1.1 for v in ratios.values()), ratios
     assert "misfit" not in fit.message
     # A hidden Maxwell arm (the relaxation branch) the three-element model lacks.
     wrong = fit_bag(read_bag(BAGS / "effect_relaxation_branch"))
-    forces = [wrong.residual_rms[f"fit_to_noise_P{i}"] for i in range(1, 6)]
+    forces = [wrong.statistics.fit_to_noise[f"P{i}"] for i in range(1, 6)]
     assert min(forces) > 5.0, forces   # measured 11.6-13.8
     assert "WARNING: the model misfits" in wrong.message and "sensor noise on P3" in wrong.message
 
@@ -72,11 +70,11 @@ def test_a_node_whose_signal_has_the_wrong_sign_is_left_out_with_a_warning(clean
     record = clean_bag.record
     flipped = record.force.copy()
     flipped[:, 0] *= -1.0   # P1 reads the push upside down: its jumps have the wrong sign
-    est = identify_paper(replace(record, force=flipped))
+    est = from_final_displacement(replace(record, force=flipped))
     assert "P1 left out" in est.message
     # The other four nodes give what they give when asked for alone (the shared
     # relaxation rate still sees P1's curve: measured within 0.08 %).
-    alone = identify_paper(record, nodes=(1, 2, 3, 4))
+    alone = from_final_displacement(record, nodes=(1, 2, 3, 4))
     for k, v in alone.params.items():
         assert est.params[k] == pytest.approx(v, rel=2e-3)
 
@@ -84,12 +82,12 @@ def test_a_node_whose_signal_has_the_wrong_sign_is_left_out_with_a_warning(clean
 def test_the_closed_form_survives_sensor_drift_with_a_warning(clean_bag):
     bag = read_bag(BAGS / "effect_sensor_drift")
     truth = {k: bag.params[f"material.{k}"] for k in ("E", "c1", "c2")}
-    est = identify_paper(bag.record)
+    est = from_final_displacement(bag.record)
     assert "tactile baseline is not zero" in est.message
     # Offset 0.1 N and drift 1e-3 N/s per node, subtracted by a line through the
     # zero-force windows: measured E, c1, c2 within 2.2 % (without: no solution at all).
     assert all(abs(e) < 5.0 for e in est.relative_errors(truth).values())
-    assert "baseline" not in identify_paper(clean_bag.record).message
+    assert "baseline" not in from_final_displacement(clean_bag.record).message
 
 
 @pytest.mark.parametrize("name, tolerance", [("clean_short_keep", 0.5), ("clean_long_keep", 0.5)])
@@ -100,10 +98,10 @@ def test_closed_form_on_the_converged_mesh_is_within_half_a_percent(name, tolera
     (measured: E, c1, c2 within 0.14 %, gamma within 2.3 %)."""
     bag = read_bag(BAGS / name)
     truth = {k: bag.params[f"material.{k}"] for k in ("E", "c1", "c2", "gamma")}
-    converged = identify_paper(bag.record, forward=Setup(bag.params).forward_model()).relative_errors(truth)
+    converged = from_final_displacement(bag.record, forward=Setup(bag.params).forward_model()).relative_errors(truth)
     assert all(abs(converged[k]) < tolerance for k in ("E", "c1", "c2")), converged
     assert abs(converged["gamma"]) < 5 * tolerance, converged
-    grid = identify_paper(bag.record).relative_errors(truth)
+    grid = from_final_displacement(bag.record).relative_errors(truth)
     assert abs(grid["E"]) > 5.0 and abs(grid["gamma"]) > 20.0, grid
 
 
@@ -114,12 +112,12 @@ def test_clock_offsets_between_the_streams_are_fitted_and_reported(clean_bag):
     forward = Setup(clean_bag.params).forward_model()
     record = clean_bag.record
     late = replace(record, force_t=record.force_t + 0.020, marker_t=record.marker_t + 0.030)
-    base, shifted = (refine(r, identify_paper(r, forward=forward), forward=forward) for r in (record, late))
-    r0, r1 = base.residual_rms, shifted.residual_rms
+    base, shifted = (fit_record(r, from_final_displacement(r, forward=forward), forward=forward) for r in (record, late))
+    r0, r1 = base.statistics.clock_offsets, shifted.statistics.clock_offsets
     # The offsets' 10 ms prior shrinks what the data say by (std / 10 ms)^2: 3 % here.
-    assert r1["tactile_delay_s"] - r0["tactile_delay_s"] == pytest.approx(0.020, abs=1e-3)
-    assert r1["marker_delay_s"] - r0["marker_delay_s"] == pytest.approx(0.030, abs=1e-3)
-    assert r1["tactile_delay_std_s"] < 0.005 and r1["marker_delay_std_s"] < 0.002
+    assert r1["tactile"][0] - r0["tactile"][0] == pytest.approx(0.020, abs=1e-3)
+    assert r1["marker"][0] - r0["marker"][0] == pytest.approx(0.030, abs=1e-3)
+    assert r1["tactile"][1] < 0.005 and r1["marker"][1] < 0.002
     assert "tactile stamps are +" in shifted.message and "marker stamps are +" in shifted.message
     for k, v in base.params.items():
         assert shifted.params[k] == pytest.approx(v, rel=1e-4), k
@@ -128,12 +126,12 @@ def test_clock_offsets_between_the_streams_are_fitted_and_reported(clean_bag):
 def test_a_closed_form_on_a_keep_too_short_to_show_relaxation_says_so():
     """1 mm held 2 s: the keep force relaxes 3 %, the rate is known to +-90 %, and the
     equations return E +1600 % (measured): never without a warning."""
-    from rheo_ros.params import load_params
-    from rheo_ros.simulator import simulate_run
+    from rheo_ros.config.setup import load_params
+    from rheo_ros.rig.simulator import simulate_run
 
     setup = Setup({**load_params(None), "stage.depth": 0.001, "stage.keep_time": 2.0})
     run = simulate_run(setup, 0)
     record = setup.record(run.stage_t, run.stage_depth, run.tactile_t, run.tactile, run.marker_t, run.markers)
-    est = identify_paper(record, forward=setup.forward_model())
+    est = from_final_displacement(record, forward=setup.forward_model())
     assert est.residual_rms["rate_rel_std"] > 0.3
     assert "pin the relaxation rate only to" in est.message and "are not determined" in est.message

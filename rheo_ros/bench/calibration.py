@@ -8,7 +8,7 @@ would be (closed form, then the whole-record fit on the identification's mesh).
 Per parameter it prints the RMS of (error / reported std) against the true value
 (target 0.9-1.2), the fraction of runs beyond 2 std, and the two parts of the std:
 the statistical part (noise) and the systematic part (the mesh's discretisation,
-``residual_rms['discretisation_<name>']``). The statistical part is checked on its
+``statistics.discretisation``). The statistical part is checked on its
 own by the spread of the estimates over the seeds against its mean (target 1).
 The systematic part is a fixed bias for all seeds, sized for continuum data (a real
 specimen): the shifts to meshes 2 and 4 times as fine and the tail beyond them. So
@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from rheo_ros.identification.paper import identify_paper
-from rheo_ros.identification.refine import refine
-from rheo_ros.params import Setup, load_params
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.identification.fit import fit_record
 from rheo_ros.record import RecordError
-from rheo_ros.simulator import observe, simulate_clean
+from rheo_ros.rig.simulator import observe, simulate_clean
 
 # (name, parameter overrides): the contract's default experiment, where the mesh's
 # systematic error outweighs the noise, a shallow short push, where the noise and the
@@ -54,14 +54,14 @@ def run_case(overrides: dict[str, Any], replicates: int, seed: int) -> dict[str,
         record = setup.record(run.stage_t, run.stage_depth, run.tactile_t, run.tactile, run.marker_t, run.markers,
                               f"seed {seed + i}")
         try:
-            fit = refine(record, identify_paper(record, forward=forward), forward=forward)
+            fit = fit_record(record, from_final_displacement(record, forward=forward), forward=forward)
         except (RecordError, np.linalg.LinAlgError) as exc:
             failures.append(str(exc))
             continue
         values.append([fit.params[k] for k in PARAMETERS])
         stds.append([fit.std[k] for k in PARAMETERS])
-        systematic.append([fit.residual_rms.get(f"discretisation_{k}", 0.0) for k in PARAMETERS])
-        fit_to_noise.append([v for k, v in fit.residual_rms.items() if k.startswith("fit_to_noise_")])
+        systematic.append([fit.statistics.discretisation.get(k, 0.0) for k in PARAMETERS])
+        fit_to_noise.append(list(fit.statistics.fit_to_noise.values()))
     v, s, sys_ = np.array(values), np.array(stds), np.array(systematic)
     t = np.array([truth[k] for k in PARAMETERS])
     z = (v - t) / s

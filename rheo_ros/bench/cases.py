@@ -9,7 +9,7 @@ from rheo_ros.fe.mesh import Mesh
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
-from rheo_ros.simulation import simulate_record
+from rheo_ros.rig.simulation import simulate_record
 
 # Table I: E, c1, c2 and d in the paper's units; a unit block (1 x 1 x 1) makes the
 # total force equal the stress and the top's sinking the strain, as in the paper's

@@ -49,11 +49,11 @@ from typing import Any
 
 import numpy as np
 
-from rheo_ros.diagnosis.analyze import analyze
-from rheo_ros.io.bag import write_run
-from rheo_ros.params import ParamsError, Setup, check_params
+from rheo_ros.app.analyze import analyze
+from rheo_ros.config.setup import ParamsError, Setup, check_params
+from rheo_ros.io.bag import BagError, write_run
 from rheo_ros.record import RecordError
-from rheo_ros.simulator import simulate_run
+from rheo_ros.rig.simulator import simulate_run
 
 EFFECTS = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
 CLASSES = ("none", *EFFECTS)
@@ -176,7 +176,7 @@ def run_bag(index: int, true: str, params: dict[str, Any], seed: int, directory:
         row["missing_effects"] = list(analysis.missing_effects)
         row["undecided"] = list(analysis.diagnoses[0].undecided) if analysis.diagnoses else []
         row["evidence"] = analysis.diagnoses[0].evidence if analysis.diagnoses else ""
-    except (RecordError, ParamsError) as exc:
+    except (BagError, RecordError, ParamsError) as exc:
         row["message"] = f"{type(exc).__name__}: {exc}"
     except Exception as exc:  # noqa: BLE001 - one bag must not end a long bench
         row["message"] = f"unexpected {type(exc).__name__}: {exc}"

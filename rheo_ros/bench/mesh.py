@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.bench.cases import TABLE_IV
+from rheo_ros.config.setup import Setup, load_params
 from rheo_ros.experiment import StageProfile, sample_times
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.refine import DISCRETISATION_RATIO, refine
+from rheo_ros.identification.fit import DISCRETISATION_RATIO, fit_record
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.params import Setup, load_params
 from rheo_ros.record import Record
 
 LEVELS = (1, 2, 3, 4, 6, 8)
@@ -65,7 +65,7 @@ def run(boundaries: tuple[tuple[str, str], ...] = (("bonded", "bonded"),)) -> di
             for level in (LEVELS if data_level == REFERENCE else (REFERENCE,)):
                 forward = QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges)
                 t0 = time.perf_counter()
-                est = refine(record, start, forward=forward)
+                est = fit_record(record, start, forward=forward)
                 rows.append({"data_refine": data_level, "refine": level, "fe_nodes": forward.fe_mesh.nodes.shape[0],
                              "error_pct": est.relative_errors(truth), "fit_s": time.perf_counter() - t0})
         out.append({"boundary": {"bottom": bottom, "top": top}, "rows": rows, "order": convergence(setup, truth, profile, start)})
@@ -77,7 +77,7 @@ def convergence(setup: Setup, truth: dict[str, float], profile: StageProfile, st
     truth) and, per parameter, the ratio of successive shifts (2^-p; the identification's
     ``DISCRETISATION_RATIO``)."""
     record = fine_mesh_record(setup, truth, ORDER_DATA, profile)
-    fits = [refine(record, start, forward=QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges),
+    fits = [fit_record(record, start, forward=QuasiStaticFE(setup.mesh, level, setup.tactile.segment_edges),
                    discretisation=False).relative_errors(truth) for level in ORDER_LEVELS]
     errors = np.array([[fit[k] for k in PARAMETERS] for fit in fits])
     shifts = np.diff(errors, axis=0)

@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.bench.cases import table_iv_case
-from rheo_ros.identification.paper import identify_paper
-from rheo_ros.identification.refine import WholeRecordProblem, cramer_rao_std, refine
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.identification.fit import WholeRecordProblem, cramer_rao_std, fit_record
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import RecordError
-from rheo_ros.simulation import Noise
+from rheo_ros.rig.simulation import Noise
 
 
 def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dict[str, Any]:
@@ -33,14 +33,14 @@ def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dic
     for i in range(replicates):
         record = noise.apply(clean, np.random.default_rng([seed, i]))
         try:
-            closed = identify_paper(record)
+            closed = from_final_displacement(record)
         except RecordError:
             failures["closed_form"] += 1
             failures["whole_record"] += 1
             continue
         estimates["closed_form"].append([closed.params[k] for k in truth])
         try:
-            fit = refine(record, closed)
+            fit = fit_record(record, closed)
             estimates["whole_record"].append([fit.params[k] for k in truth])
         except (RecordError, np.linalg.LinAlgError):
             failures["whole_record"] += 1

@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rheo_ros.demo import stop_processes
-from rheo_ros.io.bag import simulate_to_bag
-from rheo_ros.params import Setup, load_params
+from rheo_ros.app.demo import stop_processes
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, load_params
 
 SHORT_RUN = {"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2.0, "stage.release_time": 30.0}
 

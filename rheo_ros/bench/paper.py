@@ -8,9 +8,9 @@ import numpy as np
 
 from rheo_ros.bench.cases import TABLE_IV_DEFORMATION_ERROR, Case, table_i_case, table_iv_case
 from rheo_ros.fe.dynamic import DynamicFE
+from rheo_ros.identification.closed_form import deformation_error, from_final_displacement
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.paper import deformation_error, identify_paper
-from rheo_ros.identification.refine import refine
+from rheo_ros.identification.fit import fit_record
 from rheo_ros.models.elements import three_element
 
 
@@ -41,16 +41,16 @@ def run() -> dict[str, Any]:
     """Simulate the three cases with the project's FE model and identify them."""
     out = []
     for case in (table_i_case("long", 200.0), table_i_case("short", 20.0), table_iv_case()):
-        closed = identify_paper(case.record, method=case.method)
+        closed = from_final_displacement(case.record, method=case.method)
         entry: dict[str, Any] = {
             "case": case.name,
             "truth": case.truth,
             "paper": {k: {"value": v, "error_pct": e} for k, (v, e) in case.paper.items()},
             "closed_form": _row(closed, case.truth),
-            "whole_record": _row(refine(case.record, closed), case.truth),
+            "whole_record": _row(fit_record(case.record, closed), case.truth),
         }
         if case.record.mesh.geometry == "plane_fe":
-            p2_p4 = identify_paper(case.record, method=case.method, nodes=(1, 2, 3))
+            p2_p4 = from_final_displacement(case.record, method=case.method, nodes=(1, 2, 3))
             entry["closed_form_P2_P4"] = _row(p2_p4, case.truth)
             entry["deformation_error_pct"] = {
                 "closed_form": _keep_end_deformation_error(case, closed),

@@ -7,9 +7,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from rheo_ros.io.bag import simulate_to_bag
-from rheo_ros.params import Setup, load_params
-from rheo_ros.simulator import simulate_run
+from rheo_ros.app.simulate import simulate_to_bag
+from rheo_ros.config.setup import Setup, load_params
+from rheo_ros.rig.simulator import simulate_run
 
 
 def run(repeats: int = 3) -> dict[str, Any]:

@@ -20,14 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from rheo_ros.experiment import StageProfile
+from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.identification.fit import away_from_boundaries
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
-from rheo_ros.identification.refine import away_from_boundaries
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
 
-PHASES = ("before", "pull", "keep", "release")
 WINDOW_S = 1.0        # running mean over this span (s) for systematic windows
 WINDOW_SIGMAS = 4.0   # a window stands out when its mean exceeds this many of its own std
 MAX_LAGS = 20         # Ljung-Box lags (fewer on short series: a fifth of the samples)
@@ -59,12 +58,6 @@ class ResidualStats:
     @property
     def rms_over_noise(self) -> float:
         return self.rms / self.noise if self.noise > 0 else float("nan")
-
-
-def phase_of(t: np.ndarray, profile: StageProfile) -> np.ndarray:
-    """Index into ``PHASES`` of each time ``t`` (s)."""
-    edges = [profile.t_pull_start, profile.t_pull_end, profile.t_keep_end]
-    return np.searchsorted(edges, np.asarray(t), side="right")
 
 
 def ljung_box_p(r: np.ndarray, lags: int = MAX_LAGS) -> float:

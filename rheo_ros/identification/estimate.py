@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:   # the fit's module imports this one
+    from rheo_ros.identification.fit import FitStatistics
+
+# The three-element model's parameters and the Poisson ratio, in the order every result lists them.
+BASE_PARAMETERS = ("E", "c1", "c2", "gamma")
 
 
 @dataclass(frozen=True)
@@ -16,8 +23,11 @@ class Estimate:
         method: the procedure (``paper_long_time``, ``paper_short_time``, ``whole_record``).
         equations: the paper's equations that produced the values.
         covariance: in the order of ``params``, or None where the method gives none.
-        residual_rms: RMS of the residuals the method minimised, by group.
+        residual_rms: a closed form's own figures (force-curve RMS, the relaxation rate's
+            relative std, ...), by name.
         message: what a person should know (how the data were used, warnings).
+        statistics: the whole-record fit's figures (noise, fit to noise, clock offsets,
+            deviance, BIC; ``FitStatistics``); None for a closed form.
     """
 
     params: dict[str, float]
@@ -26,6 +36,7 @@ class Estimate:
     covariance: np.ndarray | None = None
     residual_rms: dict[str, float] = field(default_factory=dict)
     message: str = ""
+    statistics: FitStatistics | None = None
 
     @property
     def std(self) -> dict[str, float]:

@@ -36,6 +36,15 @@ def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[floa
 
 
 @dataclass(frozen=True)
+class Weights:
+    """The noise a fit weights its residuals by: per tactile segment (N) and per marker
+    coordinate (m). ``None`` for a fit that estimates them from its own residuals."""
+
+    force_std: np.ndarray
+    marker_std: float
+
+
+@dataclass(frozen=True)
 class SensorNoise:
     """Noise levels a record shows.
 
@@ -51,6 +60,17 @@ class SensorNoise:
     marker_std: float
     force_samples: np.ndarray
     marker_samples: int
+
+    @property
+    def known(self) -> bool:
+        """Every signal shows its noise (a noise-free record, or a segment with too few
+        live readings, does not)."""
+        levels = np.append(self.force_std, self.marker_std)
+        return bool(np.all(np.isfinite(levels) & (levels > 0)))
+
+    @property
+    def weights(self) -> Weights:
+        return Weights(self.force_std, self.marker_std)
 
 
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -8,7 +8,6 @@ inside the MCAP (readable by rosbags and by mcap + mcap-ros2-support).
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
+from rheo_ros.config.setup import Setup, params_yaml, parse_params
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     STAGE_TOPIC,
@@ -36,10 +36,14 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.params import Setup, params_yaml, parse_params
-from rheo_ros.record import Record, RecordError
+from rheo_ros.record import Record
 
 PARAMS_KEY = "rheo_ros.params"
+
+
+class BagError(Exception):
+    """A bag cannot be read as the contract's (unreadable or damaged file, not rosbag2,
+    missing topic, malformed message); the message names the file, topic and field."""
 
 
 def typestore() -> Any:
@@ -104,21 +108,21 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
     """The parameters stored in a bag's metadata, or None when it holds none.
 
     Raises:
-        RecordError: metadata.yaml unreadable or not rosbag2 metadata.
+        BagError: metadata.yaml unreadable or not rosbag2 metadata.
     """
     meta = Path(path) / "metadata.yaml"
     try:
         info = yaml.safe_load(meta.read_text())
     except OSError as exc:
-        raise RecordError(f"{meta}: cannot read: {exc.strerror}") from None
+        raise BagError(f"{meta}: cannot read: {exc.strerror}") from None
     except yaml.YAMLError as exc:
-        raise RecordError(f"{meta}: not YAML: {str(exc).splitlines()[0]}") from None
+        raise BagError(f"{meta}: not YAML: {str(exc).splitlines()[0]}") from None
     info = info.get("rosbag2_bagfile_information") if isinstance(info, dict) else None
     if not isinstance(info, dict):
-        raise RecordError(f"{meta}: no rosbag2_bagfile_information mapping")
+        raise BagError(f"{meta}: no rosbag2_bagfile_information mapping")
     custom = info.get("custom_data") or {}
     if not isinstance(custom, dict):
-        raise RecordError(f"{meta}: custom_data is not a mapping")
+        raise BagError(f"{meta}: custom_data is not a mapping")
     text = custom.get(PARAMS_KEY)
     return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}") if text else None
 
@@ -129,10 +133,10 @@ def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
             conns = [c for c in reader.connections if c.topic in topics]
             for conn, _, raw in reader.messages(connections=conns):
                 yield conn.topic, reader.deserialize(raw, conn.msgtype)
-    except RecordError:
+    except BagError:
         raise
     except Exception as exc:  # rosbags raises several types for damaged files
-        raise RecordError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
+        raise BagError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
 
 
 def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagContents:
@@ -143,15 +147,15 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
         params: flat parameters overriding the bag's own (``--params-file``).
 
     Raises:
-        RecordError: unreadable bag, missing topic, malformed message (the message
+        BagError: unreadable bag, missing topic, malformed message (the message
             names the file, topic and field).
     """
     path = Path(path)
     if not (path / "metadata.yaml").is_file():
-        raise RecordError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
     params = params or read_params(path)
     if params is None:
-        raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
+        raise BagError(f"{path}: no parameters in the bag's metadata; give --params-file")
     setup = Setup(params)
     data: dict[str, list] = {STAGE_TOPIC: [], TACTILE_TOPIC: [], MARKERS_TOPIC: []}
     decode = {STAGE_TOPIC: read_joint_state, TACTILE_TOPIC: read_pressure_image, MARKERS_TOPIC: read_marker_array}
@@ -159,10 +163,10 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
         try:
             data[topic].append((stamp_ns(msg), decode[topic](msg)))
         except MessageError as exc:
-            raise RecordError(f"{path}: {topic}: {exc}") from None
+            raise BagError(f"{path}: {topic}: {exc}") from None
     for topic, rows in data.items():
         if not rows:
-            raise RecordError(f"{path}: {topic}: no messages")
+            raise BagError(f"{path}: {topic}: no messages")
         rows.sort(key=lambda r: r[0])
     stage_t = np.array([r[0] for r in data[STAGE_TOPIC]]) * 1e-9
     stage = np.array([r[1] for r in data[STAGE_TOPIC]])
@@ -172,10 +176,10 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
     markers = np.array([r[1] for r in data[MARKERS_TOPIC]])
     mesh, tactile = setup.mesh, setup.tactile
     if images.shape[1:] != (tactile.rows, tactile.cols):
-        raise RecordError(f"{path}: {TACTILE_TOPIC}: images {images.shape[1:]}, parameters say "
+        raise BagError(f"{path}: {TACTILE_TOPIC}: images {images.shape[1:]}, parameters say "
                           f"{tactile.rows} x {tactile.cols}")
     if markers.shape[1:] != mesh.nodes.shape:
-        raise RecordError(f"{path}: {MARKERS_TOPIC}: {markers.shape[1]} markers, parameters say {mesh.nodes.shape[0]}")
+        raise BagError(f"{path}: {MARKERS_TOPIC}: {markers.shape[1]} markers, parameters say {mesh.nodes.shape[0]}")
     record = setup.record(stage_t, stage[:, 0], tactile_t, images, marker_t, markers, str(path))
     return BagContents(record, params, tactile_t, images, stage[:, 1])
 
@@ -186,7 +190,7 @@ def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
     with ``t`` the header stamp (s).
 
     Raises:
-        RecordError: unreadable bag or malformed message (names the topic and field).
+        BagError: unreadable bag or malformed message (names the topic and field).
     """
     path = Path(path)
     decode = {STAGE_TOPIC: ("stage", lambda m: read_joint_state(m)[0]), TACTILE_TOPIC: ("image", read_pressure_image),
@@ -196,20 +200,7 @@ def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
         try:
             yield stream, stamp_ns(msg) * 1e-9, read(msg)
         except MessageError as exc:
-            raise RecordError(f"{path}: {topic}: {exc}") from None
-
-
-def simulate_to_bag(setup: Setup, seed: int, out: str | Path) -> dict[str, int]:
-    """Simulate a run and write the bag directly (same physics as the nodes, no DDS).
-    Returns the message count per topic; a failure leaves no bag behind."""
-    from rheo_ros.simulator import simulate_run
-
-    run = simulate_run(setup, seed)
-    try:
-        return write_run(run, {**setup.params, "simulator.seed": seed}, out)
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)  # no half-written bag to trip the next run
-        raise
+            raise BagError(f"{path}: {topic}: {exc}") from None
 
 
 def write_run(run: Any, params: dict[str, Any], out: str | Path) -> dict[str, int]:

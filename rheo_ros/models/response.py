@@ -23,6 +23,7 @@ from scipy import signal
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
+from rheo_ros.experiment import StageProfile
 from rheo_ros.models.elements import Element
 
 
@@ -56,6 +57,13 @@ class Program:
         if np.isfinite(retract_speed):
             release = (Segment(depth / retract_speed, -retract_speed, one_sided=True),) + release
         return cls(t0, (Segment(pull_time, depth / pull_time), Segment(keep_time, 0.0)) + release)
+
+
+def stage_program(profile: StageProfile) -> Program:
+    """The top-face displacement program (m) of a stage profile, for the exact model
+    response; the specimen follows a retracting stage while it presses on it."""
+    return Program.push_hold_release(profile.depth, profile.pull_time, profile.keep_time, profile.t_pull_start,
+                                     profile.retract_speed)
 
 
 @dataclass(frozen=True)

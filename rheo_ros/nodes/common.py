@@ -13,7 +13,14 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
 
-from rheo_ros.params import DEFAULTS, PARAM_HELP, ParamsError, check_params
+from rheo_ros.config.setup import ParamsError, check_params
+from rheo_ros.config.table import PARAMETERS
+
+
+class GraphError(Exception):
+    """The ROS graph is not as a tool needs it (a topic or a subscriber missing after a
+    timeout); the message names the topic."""
+
 
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
@@ -45,11 +52,10 @@ def declare_all(node: Node) -> dict[str, Any]:
         # after the one-line error): the node goes now, as the plain rclpy Node it is.
         Node.destroy_node(node)
         raise
-    for name in DEFAULTS:
+    for parameter in PARAMETERS:
         # Dynamic typing: a file's "150" for a float parameter means 150.0, as in the CLI;
         # check_params above applies the one set of rules.
-        descriptor = ParameterDescriptor(description=PARAM_HELP.get(name, "see config/rheo_ros.yaml"),
-                                         dynamic_typing=True)
+        name, descriptor = parameter.name, ParameterDescriptor(description=parameter.help, dynamic_typing=True)
         if node.has_parameter(name):  # declared from the file: keep its value, give it the table's descriptor
             node.set_descriptor(name, descriptor)
         else:  # the value the node runs with, which the parameter services then serve (rheo record)
@@ -60,11 +66,8 @@ def declare_all(node: Node) -> dict[str, Any]:
 def node_help(name: str, summary: str) -> str:
     """``--help`` text: usage, what the node does, and every parameter with its default."""
     lines = [f"usage: {name} [--help] [--ros-args --params-file FILE] [--ros-args -p NAME:=VALUE ...]", "",
-             summary, "", "parameters (config/rheo_ros.yaml documents them all):"]
-    for key, default in DEFAULTS.items():
-        if key.startswith("effects."):
-            continue
-        lines.append(f"  {key} = {default!r}: {PARAM_HELP.get(key, '')}")
+             summary, "", "parameters, name = default: meaning (config/rheo_ros.yaml also lists effects.<id>.*):"]
+    lines += [f"  {p.name} = {p.default!r}: {p.help}" for p in PARAMETERS if not p.name.startswith("effects.")]
     return "\n".join(lines)
 
 

@@ -35,6 +35,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rheo_ros_interfaces.msg import Diagnosis, Estimate
 from sensor_msgs.msg import Image, JointState
 
+from rheo_ros.config.setup import Setup
+from rheo_ros.identification.pipeline import ClosedForm
 from rheo_ros.io.messages import (
     DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
@@ -51,12 +53,10 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.identification import estimate as identified
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
-from rheo_ros.params import Setup
 from rheo_ros.record import RecordError
 
 # Measurements: reliable, KEEP_ALL: a reader that falls behind holds the writer back
@@ -109,13 +109,13 @@ class EstimatorNode(Node):
         self.started = time.monotonic()
         # Lanes: a thread each, handing the work to its worker process and the result back.
         self.workers = {"closed_form": Worker(self.core.identify, self.NICENESS["closed_form"])}
-        if self.core.config.refine:
+        if self.core.config.fit:
             self.workers["fit"] = Worker(self.core.identify, self.NICENESS["fit"])
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
         # Fits and diagnoses take seconds: a lane that falls behind keeps FIT_BACKLOG jobs,
         # skipping first a push's earlier fits that its later phase's covers, and counts
         # what it skips (reported on /diagnostics).
-        self.fit_jobs: Backlog[tuple[Job, identified.Estimate | RecordError, float] | None] = Backlog(
+        self.fit_jobs: Backlog[tuple[Job, ClosedForm | None, float] | None] = Backlog(
             FIT_BACKLOG, supersedes=self._supersedes)
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
@@ -160,8 +160,15 @@ class EstimatorNode(Node):
 
     def dispatch(self, arrival: float) -> None:
         """Hand the phases whose data are all in to the worker. Which samples a job uses
-        depends on stamps only; a silent topic stops holding phases back."""
-        for job in self.core.ready_jobs(self.silent_streams()):
+        depends on stamps only; a silent topic stops holding phases back, and when every
+        topic has gone silent a release still open closes there (cut short: the robot
+        let go and moved on, or the recording stopped)."""
+        silent = self.silent_streams()
+        if len(silent) == len(TOPICS) and any(a is not None for a in self.arrived.values()) and self.core.release_open:
+            for e in self.core.finish(f"no message on any topic for {self.stale_after:g} s"):
+                self.get_logger().warning(f"experiment {e.experiment}: release closed at {e.t_end:.3f} s: "
+                                          "the data stopped before the specimen settled")
+        for job in self.core.ready_jobs(silent):
             self.closed_jobs.put((job, arrival))
 
     def on_stage(self, msg: JointState) -> None:
@@ -207,13 +214,12 @@ class EstimatorNode(Node):
             pass
 
     @staticmethod
-    def _supersedes(new: tuple[Job, identified.Estimate | RecordError, float] | None,
-                    old: tuple[Job, identified.Estimate | RecordError, float] | None) -> bool:
-        """Whether fit job ``new`` makes the waiting ``old`` pointless: a later phase of the
-        same push with a closed form to start from (one without starts from the earlier
-        phase's fit)."""
-        return (new is not None and old is not None and not isinstance(new[1], RecordError)
-                and supersedes(new[0], old[0]))
+    def _supersedes(new: tuple[Job, ClosedForm | None, float] | None,
+                    old: tuple[Job, ClosedForm | None, float] | None) -> bool:
+        """Whether fit job ``new`` makes the waiting ``old`` pointless: a later stretch of
+        the same push with a closed form to start from (one without starts from the
+        earlier phase's fit)."""
+        return new is not None and old is not None and new[1] is not None and supersedes(new[0], old[0])
 
     def _failed(self, job: Job, exc: Exception) -> None:
         e = job.event
@@ -232,17 +238,19 @@ class EstimatorNode(Node):
             start = time.perf_counter()
             try:
                 update, closed = self._in_worker("closed_form", "closed_form", job)
+            except RecordError as exc:   # no closed form: the fit starts from the push's last fit
+                closed, failure = None, exc
             except Exception as exc:
                 self._failed(job, exc)
                 continue
-            if update is not None:
+            else:
                 self._hand_out(update, arrival, (time.perf_counter() - start,
                                                  self.workers["closed_form"].last_compute))
                 self.last_error = ""
             if "fit" in self.workers:
                 self.fit_jobs.put((job, closed, arrival))
-            elif update is None:
-                self._failed(job, closed)
+            elif closed is None:
+                self._failed(job, failure)
         self.fit_jobs.put(None)
 
     def fit_lane(self) -> None:
@@ -258,8 +266,8 @@ class EstimatorNode(Node):
             self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
                                f"{', '.join(TOPICS[s] for s in job.stale)} (stale)") if job.stale else ""
             fit = self.core.last_fit(e.experiment)
-            if e.name == "release" and self.core.config.diagnose and fit is not None:
-                if self.fit_jobs.holds(lambda item: item is not None and item[0].event.name == "release"):
+            if job.final and self.core.config.diagnose and fit is not None:
+                if self.fit_jobs.holds(lambda item: item is not None and item[0].final):
                     # Seconds of work on a push the robot has moved on from, while a newer
                     # push's final estimate waits: that one's diagnosis is the one to have.
                     self.skipped_diagnoses += 1

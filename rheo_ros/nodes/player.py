@@ -25,9 +25,9 @@ from rclpy.signals import SignalHandlerOptions
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 
-from rheo_ros.io.bag import typestore
+from rheo_ros.io.bag import BagError, typestore
 from rheo_ros.io.messages import MessageTypes
-from rheo_ros.record import RecordError
+from rheo_ros.nodes.common import GraphError
 
 # KEEP_ALL + reliable: the writer holds what a reader has not acknowledged, so a slow
 # subscriber slows the player down instead of losing messages (KEEP_LAST overwrites
@@ -59,7 +59,7 @@ def _bag_messages(path: Path, topics: Sequence[str] | None, loops: int
             if topics is not None:
                 missing = sorted(set(topics) - {c.topic for c in conns})
                 if missing:
-                    raise RecordError(f"{path}: {', '.join(missing)}: not in the bag")
+                    raise BagError(f"{path}: {', '.join(missing)}: not in the bag")
             span = reader.end_time - reader.start_time + 10_000_000   # a pass, plus one 10 ms gap
             for k in range(loops):
                 shift = k * span
@@ -71,10 +71,10 @@ def _bag_messages(path: Path, topics: Sequence[str] | None, loops: int
                             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
                         raw = reader.typestore.serialize_cdr(msg, conn.msgtype)
                     yield conn.topic, conn.msgtype, t + shift, bytes(raw)
-    except RecordError:
+    except BagError:
         raise
     except Exception as exc:  # rosbags raises several types for damaged files
-        raise RecordError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
+        raise BagError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
 
 
 def _publish(publisher: Any, raw: bytes, stop: threading.Event) -> None:
@@ -101,14 +101,14 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         wait_for: start once every topic has this many subscribers.
 
     Raises:
-        RecordError: unreadable bag, unknown topic, or subscribers missing after
+        BagError: unreadable bag, unknown topic. GraphError: subscribers missing after
             ``discovery_timeout`` s.
     """
     path = Path(path)
     if not (path / "metadata.yaml").is_file():
-        raise RecordError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
     if not rate > 0:
-        raise RecordError(f"--rate: {rate} must be positive")
+        raise ValueError(f"--rate: {rate} must be positive")
     with AnyReader([path], default_typestore=typestore()) as reader:
         types = {c.topic: c.msgtype for c in reader.connections if topics is None or c.topic in topics}
     stop = threading.Event()
@@ -126,7 +126,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         while wait_for and any(p.get_subscription_count() < wait_for for p in pubs.values()):
             if time.monotonic() > deadline or stop.is_set():
                 short = [t for t, p in pubs.items() if p.get_subscription_count() < wait_for]
-                raise RecordError(f"{', '.join(short)}: fewer than {wait_for} subscriber(s) after "
+                raise GraphError(f"{', '.join(short)}: fewer than {wait_for} subscriber(s) after "
                                   f"{discovery_timeout:g} s")
             rclpy.spin_once(node, timeout_sec=0.05)
         counts, sent = dict.fromkeys(types, 0), 0
@@ -157,7 +157,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         # What a reader has not acknowledged dies with the writer: wait for it.
         for p in pubs.values():
             if not p.wait_for_all_acked(rclpy.duration.Duration(seconds=60.0)):
-                raise RecordError(f"{path}: a subscriber did not acknowledge every message within 60 s")
+                raise GraphError(f"{path}: a subscriber did not acknowledge every message within 60 s")
         return counts
     finally:
         node.destroy_node()

@@ -20,7 +20,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from rheo_ros.io.bag import BagWriter
 from rheo_ros.io.messages import MessageTypes
-from rheo_ros.record import RecordError
+from rheo_ros.nodes.common import GraphError
 
 
 def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 5.0) -> tuple[dict | None, str]:
@@ -29,7 +29,7 @@ def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 
     driver that is not ours). The simulator, which makes the measurements, wins."""
     from rclpy.parameter_client import AsyncParameterClient
 
-    from rheo_ros.params import DEFAULTS, ParamsError, check_params
+    from rheo_ros.config.setup import DEFAULTS, ParamsError, check_params
 
     publishers: list[str] = []
     deadline = time.monotonic() + timeout
@@ -73,7 +73,7 @@ def record(
     Prints ``recording`` once every topic's subscription has matched its publishers.
 
     Raises:
-        RecordError: a topic did not appear on the graph within ``discovery_timeout`` s.
+        GraphError: a topic did not appear on the graph within ``discovery_timeout`` s.
     """
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -89,7 +89,7 @@ def record(
                     types[name] = names[0]
         missing = [t for t in topics if t not in types]
         if missing:
-            raise RecordError(f"{', '.join(missing)}: not on the ROS graph after {discovery_timeout:g} s")
+            raise GraphError(f"{', '.join(missing)}: not on the ROS graph after {discovery_timeout:g} s")
         if params is None:
             params, source = parameters_of_publishers(node, topics)
             print(f"rheo record: storing {source}" if params else f"rheo record: no parameters stored ({source})",
@@ -110,7 +110,7 @@ def record(
             while not stop.is_set() and any(s.get_publisher_count() == 0 for s in subs):
                 if time.monotonic() > deadline:
                     late = [t for t, s in zip(topics, subs) if s.get_publisher_count() == 0]
-                    raise RecordError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
+                    raise GraphError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
                 rclpy.spin_once(node, timeout_sec=0.01)
             print(f"recording {len(topics)} topic(s)", flush=True)
             end = None if duration is None else time.monotonic() + duration

@@ -8,12 +8,16 @@ estimator runs, so both find the same phases.
 """
 
 from __future__ import annotations
+
+import time
+
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
 from rheo_ros_interfaces.msg import Phase
 from sensor_msgs.msg import Image, JointState
 
+from rheo_ros.config.setup import Setup
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     PHASE_TOPIC,
@@ -30,7 +34,6 @@ from rheo_ros.io.messages import (
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
-from rheo_ros.params import Setup
 
 
 class SegmenterNode(Node):
@@ -47,10 +50,13 @@ class SegmenterNode(Node):
         self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
         self.bad = 0
         self.last_bad = ""
+        self.stale_after = params["estimator.stale_after"]
+        self.last_message: float | None = None   # wall clock (monotonic) of the last measurement
         self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
         self.get_logger().info("segmenter ready")
 
     def _feed(self, topic: str, msg, convert) -> None:
+        self.last_message = time.monotonic()
         try:
             events = convert(stamp_ns(msg) * 1e-9, msg)
         except (MessageError, ValueError) as exc:
@@ -76,7 +82,17 @@ class SegmenterNode(Node):
     def on_markers(self, msg: PoseArray) -> None:
         self._feed(MARKERS_TOPIC, msg, lambda t, m: self.core.add_markers(t, read_marker_array(m)))
 
+    def close_when_silent(self) -> None:
+        """Every topic silent for ``estimator.stale_after`` s with a release open: the data
+        stopped (the robot let go and moved on); the release ends at its last frame, as
+        the estimator ends it."""
+        if (self.last_message is not None and time.monotonic() - self.last_message > self.stale_after
+                and self.core.state == "release"):
+            for e in self.core.close_release(f"no message on any topic for {self.stale_after:g} s"):
+                self.publish(e)
+
     def publish_diagnostics(self) -> None:
+        self.close_when_silent()
         c = self.core
         figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad,
                    **{f"out of order {k}": n for k, n in c.dropped.items()}}

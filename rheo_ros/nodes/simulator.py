@@ -19,6 +19,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, JointState
 
+from rheo_ros.config.setup import Setup
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     STAGE_TOPIC,
@@ -31,8 +32,7 @@ from rheo_ros.io.messages import (
     stamp_ns,
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
-from rheo_ros.params import Setup
-from rheo_ros.simulator import Simulator
+from rheo_ros.rig.simulator import Simulator
 
 
 class SimulatorNode(Node):

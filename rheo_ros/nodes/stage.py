@@ -22,11 +22,11 @@ from rheo_ros_interfaces.msg import Estimate
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
+from rheo_ros.config.setup import Setup
 from rheo_ros.io.messages import ESTIMATE_TOPIC, STAGE_TOPIC, JointStateEncoder, MessageTypes, stamp_ns
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS
-from rheo_ros.params import Setup
-from rheo_ros.stage import MotionSource, motion_source
+from rheo_ros.rig.stage import MotionSource, motion_source
 
 IDENTIFY_ACTION = "/rheo/identify"
 

@@ -1,18 +1,21 @@
-"""Online identification: E, c1, c2 (and gamma) updated as each phase of a push completes.
+"""The pipeline driven phase by phase: E, c1, c2 (and gamma) updated as each phase of a
+push completes, and the push's diagnosis after release.
 
 ``OnlineEstimator`` takes the three measurement streams sample by sample (header
 stamps), segments them (``PhaseSegmenter``) and, once every stream has passed a
 phase's end, turns that phase into a ``Job``: a ``Record`` of the push so far. Running
-a job (``run_job``, pure numpy/scipy, safe in a worker thread) gives the updates:
+a job (``PhaseIdentifier``, pure numpy/scipy, safe in a worker process) gives the
+updates, each from the shared pipeline steps (``rheo_ros.identification.pipeline``):
+the phase's closed form, then the whole-record fit of the data so far; after release
+(``estimator.diagnose``) the model-discovery loop on the push (``rheo_ros.diagnosis``).
+``rheo analyze`` drives the same object over a whole bag, so the node publishes for a
+bag what the analysis reports.
 
-- pull: eq. 6 on the pull alone (``identify_pull``), then the whole-record fit of the
-  pull's data with its covariance;
-- keep: eq. 6, 7, 10 with the keep's marker displacement (``identify_keep``), then the
-  fit of pull and keep;
-- release: the paper's final-displacement solution (eq. 6+14, 7, 15-17, long- or
-  short-time), then the whole-record refinement, then (``estimator.diagnose``) the
-  model-discovery loop on the whole push (``diagnose``): which effect the three-element
-  model misses, the model with it and the evidence.
+While a release goes on, an interim release job comes every ``release_interval`` s of
+data. The release closes when the markers settle, when the next push starts, at
+``segmenter.max_release``, or when the data stop (``finish``: offline at the end of the
+bag, in the node when every topic has been silent for ``estimator.stale_after``); a
+release closed by the data stopping is final all the same, with a warning.
 
 Every update says which parameters the data do not determine yet (NaN value, with
 the reason and the experiment that would determine it). Which samples a job uses is
@@ -29,23 +32,29 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rheo_ros.diagnosis.compare import PHASES
-from rheo_ros.diagnosis.discover import Diagnosis, ModelFit, discover, fit_model, polish
-from rheo_ros.experiment import StageProfile
+from rheo_ros.config.setup import Setup
+from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
+from rheo_ros.diagnosis.decision import Verdict
+from rheo_ros.diagnosis.discover import discover
+from rheo_ros.diagnosis.fits import ModelFit, assess
+from rheo_ros.experiment import PUSH_PHASES, StageProfile
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import sensor_noise
-from rheo_ros.identification.paper import identify_keep, identify_paper, identify_pull
-from rheo_ros.identification.refine import away_from_boundaries, refine
+from rheo_ros.identification.pipeline import (
+    ClosedForm,
+    closed_form,
+    fit_from_starts,
+    fit_starts,
+    force_error,
+    relaxation_unseen,
+    undetermined,
+)
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
-from rheo_ros.params import Setup
 from rheo_ros.record import Record, RecordError
-
-BASE_PARAMETERS = ("E", "c1", "c2", "gamma")
 
 
 @dataclass(frozen=True)
@@ -68,7 +77,8 @@ class Update:
     reasons: tuple[str, ...]
     message: str
     final: bool = False             # the experiment's last update (after release: the fit, or the
-                                    # closed form when the estimator does not refine)
+                                    # closed form when the estimator does not fit)
+    interim: bool = False           # a release still going on (its message says so too)
 
     @property
     def params(self) -> dict[str, float]:
@@ -103,36 +113,60 @@ class OnlineDiagnosis:
     evidence: str
 
     @classmethod
-    def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdicts: list[Diagnosis]) -> OnlineDiagnosis:
+    def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict) -> OnlineDiagnosis:
         last = models[-1].estimate
         std = last.std
-        first = verdicts[0].candidates if verdicts else ()
         return cls(
-            experiment=experiment, stamp=stamp, adequate=bool(verdicts and verdicts[-1].adequate),
-            missing_effects=tuple(v.missing_effect for v in verdicts if v.missing_effect),
-            undecided=verdicts[-1].undecided if verdicts else (), models=tuple(m.name for m in models),
+            experiment=experiment, stamp=stamp, adequate=bool(verdict.adequate),
+            missing_effects=verdict.missing_effects, undecided=verdict.undecided,
+            models=tuple(m.name for m in models),
             rmse_force=np.array([m.rmse_force for m in models]), bic=np.array([m.bic for m in models]),
-            candidates=tuple(c.effect for c in first), delta_bic=np.array([c.delta_bic for c in first]),
+            candidates=tuple(c.effect for c in verdict.candidates),
+            delta_bic=np.array([c.delta_bic for c in verdict.candidates]),
             names=tuple(last.params), values=np.array(list(last.params.values())),
             std=np.array([std.get(n, np.inf) for n in last.params]),
-            evidence=" ".join(v.evidence for v in verdicts),
+            evidence=verdict.evidence,
         )
 
 
 @dataclass(frozen=True)
 class Job:
-    """A completed phase with the data it is identified from."""
+    """A completed phase with the data it is identified from.
+
+    Attributes:
+        event: the phase.
+        record: the push's data up to the phase's end (None: too few samples).
+        stale: streams that had stopped when the job was made (it went without them).
+        interim: a release still going on (its update is not final).
+        cut_short: why a release was closed before the markers settled ("" when they did).
+    """
 
     event: PhaseEvent
-    record: Record
+    record: Record | None
     stale: tuple[str, ...] = ()
+    interim: bool = False
+    cut_short: str = ""
+
+    @property
+    def final(self) -> bool:
+        return self.event.name == "release" and not self.interim
+
+    def warning(self) -> str:
+        """What a cut-short release leaves undetermined ("" for one that settled)."""
+        if not self.cut_short:
+            return ""
+        e = self.event
+        return (f"WARNING: the release was cut short {e.t_end - e.t_start:.3g} s after the let-go "
+                f"({self.cut_short}) while the specimen still recovered: the settled displacement was not "
+                "reached, so the permanent set (and with it c2) rests on the fit's extrapolation of the "
+                "recovery, and an effect that shows late in the release (adhesion fading, drift) may go unseen")
 
 
 def supersedes(new: Job, old: Job) -> bool:
     """Whether the whole-record fit of ``new`` makes that of ``old`` pointless: a later
-    phase of the same push (its record holds every sample the earlier one's does)."""
+    stretch of the same push (its record holds every sample the earlier one's does)."""
     n, o = new.event, old.event
-    return n.experiment == o.experiment and PHASES.index(n.name) > PHASES.index(o.name)
+    return n.experiment == o.experiment and (PUSH_PHASES.index(n.name), n.t_end) > (PUSH_PHASES.index(o.name), o.t_end)
 
 
 @dataclass
@@ -164,7 +198,8 @@ class _Stream:
 
 
 class PhaseIdentifier:
-    """A completed phase's updates: the paper's closed form and the whole-record fit.
+    """A completed phase's updates from the shared pipeline steps: the closed form, the
+    whole-record fit, the diagnosis.
 
     Holds no stream state (what it needs travels in the ``Job``), so that it can run in
     a worker process beside the node.
@@ -179,182 +214,100 @@ class PhaseIdentifier:
         implied-force table, ~0.4 s)."""
         self.forward.implied_force(np.zeros(self.mesh.nodes.shape), 0.3)
 
-    def closed_form(self, job: Job) -> tuple[Update | None, Estimate | RecordError]:
-        """The paper's solution for the phase (eq. 6 after pull; 6, 7, 10 after keep; 6+14,
-        7, 15-17 after release) as an update, and the estimate a fit starts from; where
-        the closed form has no solution, no update and the reason.
+    @staticmethod
+    def _record(job: Job) -> Record:
+        if job.record is None:
+            e = job.event
+            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
+        return job.record
+
+    def closed_form(self, job: Job) -> tuple[Update, ClosedForm]:
+        """The phase's closed form (``pipeline.closed_form``) as an update, with the starts
+        of its fit.
 
         Raises:
-            RecordError: the phase has too few samples to identify at all.
+            RecordError: too few samples, or no closed form has a solution.
         """
-        e, rec = job.event, job.record
-        if rec is None:
-            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to identify")
-        try:
-            identify = {"pull": identify_pull, "keep": identify_keep, "release": identify_paper}[e.name]
-            est = identify(rec, forward=self.forward)
-        except RecordError as exc:
-            return None, exc
-        return self._update(e, rec, est), est
+        rec = self._record(job)
+        closed = closed_form(job.event.name, rec, self.forward)
+        # The table's shape: each update brings a new gamma, and an exact shape costs a
+        # factorisation (~18 ms) in the closed form's latency; the RMS moves < 1e-5.
+        p = closed.estimate.params
+        predicted = self.forward.predict(Model(three_element(p["E"], p["c1"], p["c2"])), p["gamma"],
+                                         rec.profile(), rec.force_t, rec.marker_t[:1], tabulated=True)
+        return self._update(job, closed.estimate, force_error(rec, predicted.force)[0]), closed
 
-    def fit(self, job: Job, start: Estimate, note: str = "") -> tuple[Update, Estimate]:
-        """The whole-record fit of the job's data from ``start``, checked for a relaxation
-        the data do not show; ``note`` goes in front of the fit's message.
+    def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None) -> tuple[Update, Estimate]:
+        """The whole-record fit of the job's data (``pipeline.fit_from_starts``) from the
+        closed form's starts or, where it has none, from ``previous`` (this push's last
+        fit), checked for a relaxation the data do not show.
 
-        Where ``start`` leaves a parameter undetermined (an ill-posed closed form: its raw
-        values are wherever its search stopped), the fit also runs from ``start`` with c2
-        lowered so that the relaxation shows within the record, and the more likely of the
-        two is kept. A slower start can strand the fit where c2 has no gradient (seen: c2
-        1.7e14 ends at c2 -> inf, c1 3.8 std off; from c2 <= 1e12 every start tried reaches
-        the optimum). Both starts come from the job alone: the result does not depend on
-        which earlier fits a lane behind the pushes skipped.
+        Raises:
+            RecordError: no start, or the fit failed from every start.
         """
-        rec = job.record
-        fits = [refine(rec, start, forward=self.forward)]
-        if self.undetermined(rec, start):
-            in_view = self._relaxation_in_view(rec, start)
-            try:
-                if in_view.params != start.params:
-                    fits.append(refine(rec, in_view, forward=self.forward))
-            except (ValueError, np.linalg.LinAlgError):
-                pass   # the fit from the start stands
-        # A NaN deviance (a non-finite prediction) never wins.
-        fit = min(fits, key=lambda f: np.nan_to_num(f.residual_rms["deviance"], nan=np.inf))
-        if fit is not fits[0]:
-            gain = fits[0].residual_rms["deviance"] - fit.residual_rms["deviance"]
-            note = "; ".join(filter(None, [note, f"fit from a start relaxing within the record ({gain:.3g} lower "
-                                                 "deviance than from the undetermined start)"]))
+        rec = self._record(job)
+        if closed is not None:
+            starts, note = fit_starts(rec, closed, self.config), ""
+        elif previous is not None:
+            starts, note = [previous.params], "no closed form; fit started from the previous update"
+        else:
+            e = job.event
+            raise RecordError(f"experiment {e.experiment} {e.name}: no closed form and no earlier fit to start from")
+        fit = fit_from_starts(rec, self.forward, starts, noise=sensor_noise(rec))
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
-        return self._update(job.event, rec, fit, self._relaxation_unseen(rec, fit)), fit
-
-    @staticmethod
-    def _relaxation_in_view(rec: Record, est: Estimate) -> Estimate:
-        """``est`` with c2 lowered, if need be, so that the relaxation time (c1 + c2) / E is
-        the record's length (c1 / E plus that length where c1 alone takes longer); ``est``
-        itself where its values are not finite and positive."""
-        p = est.params
-        if not all(np.isfinite(p[n]) and p[n] > 0 for n in ("E", "c1", "c2")):
-            return est
-        span = float(rec.force_t[-1] - rec.profile().t_pull_start)
-        c2 = p["E"] * span - p["c1"]
-        c2 = c2 if c2 > 0 else p["E"] * span
-        return replace(est, params={**p, "c2": min(p["c2"], c2)})
+        unseen = relaxation_unseen(rec, fit, self.forward)
+        stats = fit.statistics
+        p = fit.params
+        predicted = self.forward.predict(Model(three_element(p["E"], p["c1"], p["c2"])), p["gamma"], rec.profile(),
+                                         rec.force_t - stats.delay("tactile"), rec.marker_t[:1])
+        return self._update(job, fit, force_error(rec, predicted.force)[0], unseen), fit
 
     def diagnose(self, job: Job, fit: Estimate) -> OnlineDiagnosis:
-        """The model-discovery loop on a release job's push (``rheo_ros.diagnosis``): the
-        base model refitted with the sensor noise as weights from the release ``fit``,
-        then each missing effect added until the model is adequate. Seconds to tens of
-        seconds: the node runs it in the fit lane, after the release's fit is out.
+        """The model-discovery loop (``rheo_ros.diagnosis``) on a release job's push from
+        its whole-record ``fit``: each missing effect added until the model is adequate.
+        Seconds to tens of seconds: the node runs it in the fit lane, after the release's
+        fit is out.
 
         Raises:
             RecordError: the job has no record.
         """
-        rec, e = job.record, job.event
-        if rec is None:
-            raise RecordError(f"experiment {e.experiment} {e.name}: too few samples to diagnose")
+        rec = self._record(job)
         noise = sensor_noise(rec)
-        base = polish(rec, self.forward, fit_model(rec, self.forward, (), fit.params, noise), noise)
+        base = assess(rec, self.forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)
         # One process: the node's fit lane is a worker already.
         models, verdicts = discover(rec, self.forward, base, noise=noise, workers=1)
-        return OnlineDiagnosis.of(e.experiment, float(rec.force_t[-1]), models, verdicts)
+        verdict = Verdict.of(verdicts)
+        if job.cut_short:
+            verdict = replace(verdict, evidence=f"{job.warning()}. {verdict.evidence}")
+        return OnlineDiagnosis.of(job.event.experiment, float(rec.force_t[-1]), models, verdict)
 
-    # A slower relaxation (c2 this many times larger) that fits the data as well means the
-    # data set no upper bound on c2: its std from the local curvature would mislead.
-    PROFILE_FACTOR = 30.0
-
-    def _relaxation_unseen(self, rec: Record, fit: Estimate) -> str:
-        """Profile of the likelihood along c2: refit with c2 held PROFILE_FACTOR times
-        larger (same noise weights); a cost within 4 (2 std) says the data cannot tell."""
-        r = fit.residual_rms
-        force_std = np.array([r[f"force_std_P{i + 1}"] for i in range(self.mesh.cols)])
-        held = {"c2": fit.params["c2"] * self.PROFILE_FACTOR}
-        try:
-            alt = refine(rec, fit, force_std=force_std, marker_std=r["marker_std"], fixed=held,
-                         forward=self.forward, discretisation=False)
-        except (ValueError, np.linalg.LinAlgError):
-            return ""
-        delta = alt.residual_rms["cost"] - r["cost"]
-        if delta < 4.0:
-            return (f"the data fit as well with c2 {self.PROFILE_FACTOR:g} x larger (cost +{delta:.2g}): "
-                    "the relaxation is not seen")
-        return ""
-
-    # -- one update ------------------------------------------------------------------
-
-    def undetermined(self, rec: Record, est: Estimate, unseen: str = "") -> dict[str, str]:
-        """The parameters of ``est`` these data leave undetermined, each with why (and what
-        experiment would determine it); ``unseen``: the fit's relaxation check found none."""
+    def _update(self, job: Job, est: Estimate, rmse: float, unseen: str = "") -> Update:
+        rec, e = self._record(job), job.event
         names = tuple(n for n in BASE_PARAMETERS if n in est.params)
         values = np.array([est.params[n] for n in names])
-        undetermined: dict[str, str] = {}
-        profile = rec.profile()
-        rate = values[0] / (values[1] + values[2])
-        seen = min(rec.force_t[-1], profile.t_keep_end) - profile.t_pull_start
-        longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
-                  else "a keep long enough for the force to relax visibly determines it")
-        if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
-            undetermined["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
-                                     "inside the physical range; a deeper push determines it")
-        if est.covariance is None:
-            rel = est.residual_rms.get("rate_rel_std", 0.0)
-            if not rel <= self.config.rate_std:
-                for n in names:   # every parameter of the equations rests on the rate
-                    undetermined[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
-                                       f"rate x time seen = {rate * seen:.2g}); {longer}")
-        else:
-            std = np.sqrt(np.clip(np.diag(est.covariance), 0, None))
-            for i, n in enumerate(names):
-                if n == "gamma":
-                    if not std[i] <= self.config.gamma_std:
-                        undetermined[n] = (f"std {std[i]:.2g}: the markers' lateral motion is within their noise; "
-                                           "a deeper push determines it")
-                elif not std[i] <= self.config.undetermined_std * abs(values[i]):
-                    why = f"std {100 * std[i] / abs(values[i]):.0f} % of the value"
-                    undetermined[n] = f"{why}; {longer}" if n in ("E", "c2") else why
-        if unseen:
-            for n in ("E", "c2"):
-                undetermined[n] = f"{unseen}; {longer}"
-        return undetermined
-
-    def _update(self, e: PhaseEvent, rec: Record, est: Estimate, unseen: str = "") -> Update:
-        names = tuple(n for n in BASE_PARAMETERS if n in est.params)
-        values = np.array([est.params[n] for n in names])
-        undetermined = self.undetermined(rec, est, unseen)
+        open_ = undetermined(rec, est, self.config, unseen)
         cov = None if est.covariance is None else est.covariance.copy()
-        rmse = self._rmse_force(rec, est.params)
-        bad = [i for i, n in enumerate(names) if n in undetermined]
+        bad = [i for i, n in enumerate(names) if n in open_]
         values[bad] = np.nan
         if cov is not None:
             cov[bad, :] = np.nan
             cov[:, bad] = np.nan
+        interim = "interim: the release still goes on; " if job.interim else ""
+        message = "; ".join(filter(None, [job.warning(), interim + est.message]))
         return Update(
             experiment=e.experiment, phase=e.name, stamp=float(rec.force_t[-1]),
             model="three_element", effects=(), method=est.method, equations=est.equations, names=names,
             values=values, covariance=cov, rmse_force=rmse, samples=int(rec.force_t.size),
-            undetermined=tuple(undetermined), reasons=tuple(undetermined.values()), message=est.message,
-            final=e.name == "release" and (est.method == "whole_record" or not self.config.refine),
+            undetermined=tuple(open_), reasons=tuple(open_.values()), message=message,
+            final=job.final and (est.method == "whole_record" or not self.config.fit), interim=job.interim,
         )
-
-    def _rmse_force(self, rec: Record, params: dict[str, float]) -> float:
-        """RMS error of the total force as the array reads the model, leaving out samples
-        within 0.05 s of a phase boundary (the measured force is mid-jump there, the
-        quasi-static model has jumped)."""
-        model = Model(three_element(params["E"], params["c1"], params["c2"]))
-        profile = rec.profile()
-        # The table's shape: each update brings a new gamma, and an exact shape costs a
-        # factorisation (~18 ms) in the closed form's latency; the RMS moves < 1e-5.
-        p = self.forward.predict(model, params["gamma"], profile, rec.force_t, rec.marker_t[:1], tabulated=True)
-        use = away_from_boundaries(rec.force_t, profile)
-        # Through the tactile dead band, as the offline analysis reads a model: after the
-        # let-go a force below it reads zero, not its small true value.
-        err = rec.reading(p.force).sum(axis=1)[use] - rec.force.sum(axis=1)[use]
-        return float(np.sqrt(np.mean(err**2)))
 
 
 class OnlineEstimator:
     """Streams in, jobs out. ``add_stage`` / ``add_force`` / ``add_markers`` return the
-    phases they completed; ``ready_jobs()`` the phases whose data are all in.
+    phases they completed; ``ready_jobs()`` the phases whose data are all in (with the
+    interim releases due); ``finish()`` closes a release still open when the data stop.
 
     Args:
         setup: geometry and sensor layout (the parameters file).
@@ -378,6 +331,11 @@ class OnlineEstimator:
         self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
         self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
+        # Releases whose interim jobs are not all out: [experiment, profile, next due, release
+        # end (inf while open)]. An interim is due every release_interval s of data before the
+        # release's end, however the streams interleave.
+        self._interims: list[list] = []
+        self._cut_short: dict[int, str] = {}
 
     # -- streams ---------------------------------------------------------------------
 
@@ -433,7 +391,7 @@ class OnlineEstimator:
             if latest - keep_from > self.config.max_push_time:
                 # Bounded memory: a push this long is given up (reported by the caller).
                 self.segmenter = PhaseSegmenter(self.segmenter.config)
-                self.push_start, self.pending = None, []
+                self.push_start, self.pending, self._interims = None, [], []
                 self.dropped_pushes += 1
                 keep_from = latest - margin
         for s in self.streams.values():
@@ -442,15 +400,43 @@ class OnlineEstimator:
 
     def _took(self, events: list[PhaseEvent]) -> list[PhaseEvent]:
         for e in events:
-            if e.name != "contact":
-                self.profiles[(e.experiment, e.name)] = self.segmenter.profile
-                self.pending.append(e)
+            if e.name == "contact":
+                continue
+            self.profiles[(e.experiment, e.name)] = self.segmenter.profile
+            self.pending.append(e)
+            if e.name == "keep":
+                self._interims.append([e.experiment, self.segmenter.profile, e.t_end + self._interval, np.inf])
+            elif e.name == "release":
+                for entry in self._interims:
+                    if entry[0] == e.experiment:
+                        entry[3] = e.t_end
         return events
+
+    @property
+    def _interval(self) -> float:
+        return self.config.release_interval if self.config.release_interval > 0 else np.inf
 
     # -- jobs ------------------------------------------------------------------------
 
+    @property
+    def release_open(self) -> bool:
+        """A push has let go and its release has not closed yet."""
+        return self.segmenter.state == "release"
+
+    def finish(self, why: str = "the data stopped") -> list[PhaseEvent]:
+        """The data stopped: close a release still open at its last marker frame (its
+        job says it was cut short, and why). Call ``ready_jobs`` with every stream
+        silent next."""
+        if not self.release_open:
+            return []
+        events = self.segmenter.close_release(why)
+        for e in events:
+            self._cut_short[e.experiment] = why
+        return self._took(events)
+
     def ready_jobs(self, silent: Iterable[str] = ()) -> list[Job]:
-        """Completed phases whose every stream has passed their end.
+        """Completed phases whose every stream has passed their end, and the interim
+        release jobs due (every ``release_interval`` s of data into a release).
 
         Args:
             silent: streams that stopped arriving (the node judges this on its wall
@@ -459,21 +445,35 @@ class OnlineEstimator:
         """
         jobs = []
         silent = set(silent)
-        while self.pending:
-            e = self.pending[0]
+        while True:
+            self._interims = [r for r in self._interims if r[2] < r[3]]
+            interim = self._interims[0] if self._interims else None
+            if self.pending and (interim is None or self.pending[0].t_end <= interim[2]):
+                e = self.pending[0]
+            elif interim is not None:
+                e = PhaseEvent(interim[0], "release", interim[1].t_keep_end, interim[2], interim[2], 0)
+            else:
+                break
             behind = {n for n, s in self.streams.items() if s.last < e.t_end}
             if behind - silent:
                 break
-            self.pending.pop(0)
-            jobs.append(Job(e, self._record(e), tuple(sorted(behind))))
-            if e.name == "release":
-                self.push_start = None
+            if self.pending and e is self.pending[0]:
+                self.pending.pop(0)
+                cut = self._cut_short.pop(e.experiment, "") if e.name == "release" else ""
+                jobs.append(Job(e, self._record(e, self.profiles.pop((e.experiment, e.name))),
+                                tuple(sorted(behind)), cut_short=cut))
+                if e.name == "release":
+                    self.push_start = None
+            else:
+                interim[2] += self._interval
+                jobs.append(Job(e, self._record(e, interim[1]), tuple(sorted(behind)), interim=True))
         return jobs
 
-    def _record(self, e: PhaseEvent) -> Record | None:
-        profile = self.profiles.pop((e.experiment, e.name))
+    def _record(self, e: PhaseEvent, profile: StageProfile) -> Record | None:
         if e.name == "pull":
             profile = replace(profile, keep_time=1e9, release_time=0.0)
+        elif e.name == "release":
+            profile = replace(profile, release_time=max(e.t_end - profile.t_keep_end, 0.0))
         t0 = profile.t_pull_start - self.config.pre_contact
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
         try:
@@ -491,37 +491,35 @@ class OnlineEstimator:
         form (milliseconds), then the fit of the data so far (a tenth of a second or more).
 
         Raises:
-            RecordError: the phase cannot be identified (too short, missing data, a
-                solution outside the model); the message says why.
+            RecordError: the phase cannot be identified (too short, missing data, no
+                solution and nothing to start a fit from); the message says why.
         """
-        update, closed = self.identify.closed_form(job)
-        if update is not None:
+        try:
+            update, closed = self.identify.closed_form(job)
+        except RecordError:
+            if not self.config.fit:
+                raise
+            closed = None
+        else:
             yield update
-        elif not self.config.refine:
-            raise closed
-        if self.config.refine:
+        if self.config.fit:
             yield self.fit(job, closed)
 
-    def fit(self, job: Job, closed: Estimate | RecordError,
-            run: Callable[[Job, Estimate, str], tuple[Update, Estimate]] | None = None) -> Update:
+    def fit(self, job: Job, closed: ClosedForm | None,
+            run: Callable[[Job, ClosedForm | None, Estimate | None], tuple[Update, Estimate]] | None = None
+            ) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
         no solution, from this push's previous fit.
 
         Args:
-            closed: the job's closed-form estimate, or why it has none.
+            closed: the job's closed form (None: it has none).
             run: does the fit (``PhaseIdentifier.fit`` or a call of it in another process).
 
         Raises:
             RecordError: no closed form and no previous fit to start from.
         """
         e = job.event
-        note = ""
-        if isinstance(closed, RecordError):
-            previous = self._fits.get(e.experiment)
-            if previous is None:
-                raise closed
-            closed, note = previous, f"closed form failed ({closed}); fit started from the previous update"
-        update, fit = (run or self.identify.fit)(job, closed, note)
+        update, fit = (run or self.identify.fit)(job, closed, self._fits.get(e.experiment))
         self._fits = {e.experiment: fit}
         return update
 
@@ -546,7 +544,8 @@ class OnlineEstimator:
 def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]],
                     diagnoses: list[OnlineDiagnosis] | None = None,
                     ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
-    """Feed ``(stream, t, data)`` samples in order, run each job as it becomes ready.
+    """Feed ``(stream, t, data)`` samples in order, run each job as it becomes ready,
+    and at the end of the data close a release still open (``finish``).
 
     The offline path of the node: same core, same order of work. Returns the phases,
     the updates and the errors (one line each); with a ``diagnoses`` list (and
@@ -558,12 +557,13 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
     phases: list[PhaseEvent] = []
     updates: list[Update] = []
     errors: list[str] = []
+
     def run(jobs: list[Job]) -> None:
         for job in jobs:
             try:
                 updates.extend(estimator.run_job(job))
                 fit = estimator.last_fit(job.event.experiment)
-                if (diagnoses is not None and job.event.name == "release" and estimator.config.diagnose
+                if (diagnoses is not None and job.final and estimator.config.diagnose
                         and fit is not None):
                     diagnoses.append(estimator.identify.diagnose(job, fit))
             except (RecordError, ValueError, np.linalg.LinAlgError) as exc:
@@ -572,20 +572,6 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
     for stream, t, data in messages:
         phases += add[stream](t, data)
         run(estimator.ready_jobs())
+    phases += estimator.finish()
     run(estimator.ready_jobs(silent=estimator.streams))   # the end of the data: nothing more will come
     return phases, updates, errors
-
-
-def estimate_bag(path: str, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None
-                 ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
-    """The estimator node's work on a bag, offline: same core, same samples, same order
-    of work (what a replay over DDS into the node must reproduce); ``diagnoses`` as in
-    ``estimate_stream``."""
-    from rheo_ros.io.bag import bag_samples, read_params
-
-    params = params or read_params(path)
-    if params is None:
-        raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
-    setup = Setup(params)
-    estimator = OnlineEstimator(setup, setup.segmenter_config(), setup.estimator_config())
-    return estimate_stream(estimator, bag_samples(path), diagnoses)

@@ -22,8 +22,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from rheo_ros.config.tuning import SegmenterConfig
 from rheo_ros.experiment import StageProfile
-from rheo_ros.online.config import SegmenterConfig
 
 
 @dataclass(frozen=True)
@@ -377,6 +377,14 @@ class PhaseSegmenter:
                 return self._end_release(t_now, t_now, "settled")
         self._trim(self._judged - W - 1e-6)
         return []
+
+    def close_release(self, why: str) -> list[PhaseEvent]:
+        """End a release still open at the last marker frame (the data stopped: at the end
+        of a bag, or when every topic went silent); nothing when no release is open."""
+        if self.state != "release" or self._pending_release is None:
+            return []
+        t_end = self._frames[-1][0] if self._frames else self._t_release
+        return self._end_release(max(t_end, self._t_release), t_end, why)
 
     def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
         t_release = self._t_release

@@ -26,10 +26,10 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from rheo_ros.diagnosis.analyze import Analysis
-from rheo_ros.diagnosis.discover import REPORTED_PHASES, ModelFit
-from rheo_ros.experiment import Phase
-from rheo_ros.identification.refine import away_from_boundaries
+from rheo_ros.diagnosis.analysis import Analysis
+from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.experiment import PUSH_PHASES, Phase
+from rheo_ros.identification.fit import away_from_boundaries
 
 REPORT_NAME = "report.html"
 MEASURED_COLOUR = "#333333"
@@ -264,8 +264,8 @@ def _stage_svg(result: Analysis) -> str:
 
 
 def _error_svg(models: Sequence[ModelFit]) -> str:
-    groups = ("total", *REPORTED_PHASES)
-    values = np.array([[m.rmse_force, *(m.rmse_by_phase.get(p, np.nan) for p in REPORTED_PHASES)]
+    groups = ("total", *PUSH_PHASES)
+    values = np.array([[m.rmse_force, *(m.rmse_by_phase.get(p, np.nan) for p in PUSH_PHASES)]
                        for m in models], dtype=float)
     positive = values[np.isfinite(values) & (values > 0)]
     log_scale = positive.size > 0 and positive.max() / positive.min() > 20

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rheo_ros.params import load_params, params_yaml
+from rheo_ros.config.setup import load_params, params_yaml
 
 NODES = ("simulator", "segmenter", "estimator", "stage")
 
@@ -75,14 +75,15 @@ def _print_verdict(d: dict, params: dict) -> None:
 
 def _report(bag: Path, tmp: Path) -> None:
     """``rheo analyze`` on the recorded bag, with its HTML report."""
-    from rheo_ros.diagnosis.analyze import analyze
+    from rheo_ros.app.analyze import analyze
+    from rheo_ros.io.bag import BagError
     from rheo_ros.record import RecordError
     from rheo_ros.reports.html import write_report
 
     print(f"\nrheo analyze {bag} (the recorded run, offline) ...", flush=True)
     try:
         result = analyze(bag)
-    except RecordError as exc:
+    except (BagError, RecordError) as exc:
         print(f"rheo demo: the recorded bag could not be analysed: {exc}", file=sys.stderr)
         return
     found = ", ".join(result.missing_effects) or "none"
@@ -121,8 +122,15 @@ def run_demo(params_file: str | None = None, timeout: float = 600.0, effects: li
     from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
 
     from rheo_ros.io.messages import (
-        DIAGNOSIS_TOPIC, ESTIMATE_TOPIC, MARKERS_TOPIC, PHASE_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, read_diagnosis,
-        read_estimate, stamp_ns,
+        DIAGNOSIS_TOPIC,
+        ESTIMATE_TOPIC,
+        MARKERS_TOPIC,
+        PHASE_TOPIC,
+        STAGE_TOPIC,
+        TACTILE_TOPIC,
+        read_diagnosis,
+        read_estimate,
+        stamp_ns,
     )
 
     tmp = Path(tempfile.mkdtemp(prefix="rheo-demo-"))

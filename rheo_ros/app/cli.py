@@ -10,7 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from rheo_ros.params import ParamsError
+from rheo_ros.config.setup import ParamsError
+from rheo_ros.io.bag import BagError
+from rheo_ros.nodes.common import GraphError
 from rheo_ros.record import RecordError
 
 
@@ -30,9 +32,9 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from rheo_ros.io.bag import simulate_to_bag
+    from rheo_ros.app.simulate import simulate_to_bag
+    from rheo_ros.config.setup import Setup, check_params, load_params
     from rheo_ros.models.effects import effect_class
-    from rheo_ros.params import Setup, check_params, load_params
 
     params = load_params(args.params_file)
     if args.effect is not None:
@@ -50,8 +52,8 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _record(args: argparse.Namespace) -> int:
+    from rheo_ros.config.setup import load_params
     from rheo_ros.nodes.recorder import record
-    from rheo_ros.params import load_params
 
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
@@ -115,7 +117,7 @@ class ProgressBar:
 
 
 def _analyze(args: argparse.Namespace) -> int:
-    from rheo_ros.diagnosis.analyze import analyze
+    from rheo_ros.app.analyze import analyze
 
     bar = None if args.quiet else ProgressBar()
     try:
@@ -162,10 +164,21 @@ def format_analysis(report: dict[str, Any]) -> str:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from rheo_ros.demo import run_demo
+    from rheo_ros.app.demo import run_demo
 
     effects = None if args.effect is None else [e for e in args.effect if e != "none"]
     return run_demo(args.params_file, args.timeout, effects, report=args.report)
+
+
+def positive(text: str) -> float:
+    """An argparse type: a finite number above zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text} must be a finite number above 0")
+    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -222,7 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.set_defaults(func=_record)
     pl = sub.add_parser("play", help="publish a bag's topics over DDS (recorded timing, or as fast as taken with --clock)")
     pl.add_argument("bag", metavar="BAG", help="rosbag2 directory")
-    pl.add_argument("--rate", type=float, default=1.0, help="speed factor on the recorded timing (default 1)")
+    pl.add_argument("--rate", type=positive, default=1.0, help="speed factor on the recorded timing (default 1)")
     pl.add_argument("--clock", action="store_true",
                     help="drive /clock and go as fast as the subscribers take the messages")
     pl.add_argument("--loop", type=int, default=1, metavar="N", help="play N times, stamps shifted each pass")
@@ -266,7 +279,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (RecordError, ParamsError, KeyError, OSError) as exc:
+    except (BagError, RecordError, GraphError, ParamsError, KeyError, OSError) as exc:
         text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
         print(f"rheo: error: {' '.join(str(text).split())}", file=sys.stderr)
         return 2

@@ -10,10 +10,10 @@ reporting its measured position, and is registered under the entry-point group
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
 from importlib.metadata import entry_points
 from typing import Protocol
+
+import numpy as np
 
 from rheo_ros.experiment import StageProfile
 

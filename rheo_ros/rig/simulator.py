@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rheo_ros.config.setup import Setup
 from rheo_ros.experiment import sample_times
 from rheo_ros.models.effects import Release
-from rheo_ros.params import Setup
 
 
 @dataclass(frozen=True)

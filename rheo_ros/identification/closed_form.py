@@ -38,7 +38,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import force_noise
 from rheo_ros.models.elements import three_element
-from rheo_ros.models.response import respond
+from rheo_ros.models.response import respond, stage_program
 from rheo_ros.record import Record, RecordError
 
 Method = Literal["auto", "long_time", "short_time"]
@@ -202,7 +202,7 @@ def displacement_at_depth(record: Record, depth: float) -> np.ndarray:
     return held_by_the_sensor(record.mesh, shape) * depth
 
 
-def final_displacement(record: Record, since: float) -> np.ndarray:
+def settled_displacement(record: Record, since: float) -> np.ndarray:
     """Marker displacements (N, 2) averaged over the frames from ``since`` (s) to the end.
 
     The bottom row is held by the sensor: ``held_by_the_sensor``.
@@ -308,7 +308,7 @@ def _without_baseline(record: Record) -> tuple[Record, str]:
     return (replace(record, force=record.force - baseline), note) if note else (record, "")
 
 
-def identify_paper(
+def from_final_displacement(
     record: Record, method: Method = "auto", nodes: Sequence[int] | None = None,
     guard: float = 0.1, final_window: float | None = None, forward: QuasiStaticFE | None = None,
 ) -> Estimate:
@@ -344,13 +344,13 @@ def identify_paper(
     t_last = record.marker_t[-1]
     since = t_last - (MIN_FINAL_WINDOW if final_window is None else final_window)
     params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
-                                            final_displacement(record, since), forward)
+                                            settled_displacement(record, since), forward)
     if final_window is None:
         settled = profile.t_keep_end + SETTLED_VOIGT_TIMES * params["c1"] / params["E"]
         if settled < since:
             since = settled
             params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
-                                                    final_displacement(record, since), forward)
+                                                    settled_displacement(record, since), forward)
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
     follow = followed_stage_for(params, profile)
@@ -376,7 +376,7 @@ def followed_stage_for(params: dict[str, float], profile: StageProfile) -> float
     """How long (s) a specimen with the three-element ``params`` stays on the stage
     as it retracts (0: it lets go at once)."""
     element = three_element(params["E"], params["c1"], params["c2"])
-    t_release = respond(element, profile.program(), np.array([profile.t_keep_end])).t_release
+    t_release = respond(element, stage_program(profile), np.array([profile.t_keep_end])).t_release
     return float(t_release - profile.t_keep_end)
 
 
@@ -526,7 +526,7 @@ def _node_labels(nodes: np.ndarray, mesh_geometry: str, eqs: list[str]) -> tuple
     return tuple(eqs)
 
 
-def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
+def from_pull(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
                   forward: QuasiStaticFE | None = None) -> Estimate:
     """What the pull phase alone gives (the run may still be going on).
 
@@ -556,7 +556,7 @@ def identify_pull(record: Record, nodes: Sequence[int] | None = None, guard: flo
     )
 
 
-def identify_keep(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
+def from_pull_and_keep(record: Record, nodes: Sequence[int] | None = None, guard: float = 0.1,
                   forward: QuasiStaticFE | None = None) -> Estimate:
     """Pull and keep, before release: eq. 6, 7 and 10 with ``u_keep`` as the markers show it.
 

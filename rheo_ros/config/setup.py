@@ -2,8 +2,9 @@
 
 Nodes read it with ``--ros-args --params-file FILE``, the CLI with ``--params-file
 FILE``; a bag written by the package carries its text in the metadata. Nested keys
-are the dotted ROS parameter names (``specimen.width``). ``config/rheo_ros.yaml``
-documents every name; ``DEFAULTS`` below is the same table in code.
+are the dotted ROS parameter names (``specimen.width``). Every name's default, help
+and per-value check is its row in ``rheo_ros.config.table.PARAMETERS``;
+``config/rheo_ros.yaml`` mirrors the table with comments.
 """
 
 from __future__ import annotations
@@ -17,96 +18,23 @@ from typing import Any
 import numpy as np
 import yaml
 
+from rheo_ros.config.table import PARAMETERS, RENAMED
+from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import Boundary, Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import Element, three_element
-from rheo_ros.online.config import EstimatorConfig, SegmenterConfig
 from rheo_ros.record import Record
 from rheo_ros.sensors import MarkerCamera, TactileArray
 
 FORWARD_MODELS_KEPT = 4
 _FORWARD_MODELS: dict[tuple, QuasiStaticFE] = {}   # Setup.forward_model's, by geometry
 
-DEFAULTS: dict[str, Any] = {
-    "geometry": "plane_fe", "boundary.bottom": "bonded", "boundary.top": "bonded", "mesh.refine": 8,
-    "specimen.width": 0.080, "specimen.height": 0.080, "specimen.thickness": 0.0125,
-    "tactile.rows": 6, "tactile.cols": 32, "tactile.noise": 100.0, "tactile.resolution": 10.0,
-    "tactile.threshold": 300.0,
-    "markers.rows": 5, "markers.cols": 5, "markers.noise": 2.0e-5,
-    "stage.depth": 0.010, "stage.velocity": 0.0005, "stage.keep_time": 48.0, "stage.start_delay": 1.0,
-    "stage.retract_speed": 0.02, "stage.release_time": 100.0,
-    "stage.driver": "simulated", "stage.wait_for_subscribers": 0, "stage.autostart": True,
-    "stage.exit_when_done": False, "simulator.clock": False, "simulator.clock_step": 10,
-    "rates.stage": 100.0, "rates.tactile": 50.0, "rates.markers": 10.0,
-    "material.E": 3.33e4, "material.c1": 1.69e5, "material.c2": 3.11e7, "material.gamma": 0.332,
-    "material.density": 1500.0,
-    "simulator.omega": 1000.0, "simulator.refine": 16, "simulator.seed": 0, "simulator.effects": [""],
-    "effects.relaxation_branch.stiffness": 3.0e4, "effects.relaxation_branch.viscosity": 1.5e5,
-    "effects.adhesion.fraction": 0.3, "effects.adhesion.time": 200.0,
-    "effects.strain_stiffening.coefficient": 4.0,
-    "effects.sensor_drift.offset": 0.1, "effects.sensor_drift.rate": 1.0e-3,
-    "segmenter.confirm": 3, "segmenter.plateau": 10, "segmenter.flat_slope": 0.2,
-    "segmenter.settle_window": 5.0, "segmenter.settle_fraction": 1.0e-3, "segmenter.min_depth": 1.0e-4,
-    "segmenter.contact_force": 0.005, "segmenter.max_release": 600.0,
-    "estimator.refine": True, "estimator.undetermined_std": 0.3, "estimator.gamma_std": 0.05,
-    "estimator.rate_std": 0.3, "estimator.pre_contact": 2.0, "estimator.max_push_time": 3600.0,
-    "estimator.stale_after": 2.0, "estimator.diagnostics_period": 1.0, "estimator.diagnose": True,
-}
-
-
-PARAM_HELP: dict[str, str] = {
-    "geometry": "uniaxial (homogeneous block in uniaxial stress, paper Sec. II-III: both faces frictionless, gamma "
-                "from the markers' lateral motion) or plane_fe (2D plane-stress FE of the face, Sec. IV)",
-    "boundary.bottom": "plane_fe: bonded (no slip on the sensor) or frictionless; uniaxial: frictionless only "
-                       "(filled in when not set)",
-    "boundary.top": "plane_fe: bonded (no slip against the stage) or frictionless; uniaxial: frictionless only "
-                    "(filled in when not set)",
-    "mesh.refine": "identification's FE mesh: each marker-grid element split refine x refine (1: the paper's "
-                   "mesh on the markers, nodal forces; more: segment forces integrated over their extent)",
-    "simulator.refine": "simulator's FE mesh, as mesh.refine (finer than the identification's: its data are not "
-                        "the identifier's own model)",
-    "specimen.width": "m, along x", "specimen.height": "m, along y (pushing axis)",
-    "specimen.thickness": "m, along z",
-    "tactile.rows": "cells along z", "tactile.cols": "cells along x",
-    "tactile.noise": "Pa, Gaussian per cell", "tactile.resolution": "Pa per count (0: none)",
-    "tactile.threshold": "Pa, dead band: readings below it are zero (3 x noise keeps an unloaded array at zero)",
-    "markers.rows": "markers along y", "markers.cols": "markers along x", "markers.noise": "m per coordinate",
-    "stage.depth": "m, pushing depth", "stage.velocity": "m/s, pull", "stage.keep_time": "s",
-    "stage.start_delay": "s before pulling", "stage.retract_speed": "m/s on release (.inf: at once)",
-    "stage.release_time": "s after release until the run is done",
-    "stage.driver": "motion source: simulated, or a driver registered in rheo_ros.stage_drivers",
-    "stage.wait_for_subscribers": "stage node: start the run once this many subscribers listen (0: at once)",
-    "stage.autostart": "stage node: run the profile once at start (false: wait for /rheo/identify goals)",
-    "stage.exit_when_done": "stage node: end the process when the profile is done",
-    "simulator.clock": "simulator node: publish /clock and run as fast as possible (stage with use_sim_time)",
-    "simulator.clock_step": "stage periods the /clock moves on per exchange with the stage (fast mode)",
-    "segmenter.confirm": "samples in a row that confirm a change (push start, leaving the hold, contact)",
-    "segmenter.plateau": "flat stage samples that end the pull",
-    "segmenter.flat_slope": "a plateau's trend must stay below this fraction of the pull velocity",
-    "segmenter.settle_window": "s of marker frames judged for the end of release",
-    "segmenter.settle_fraction": "motion below this fraction of the push's largest marker motion is settled",
-    "segmenter.min_depth": "m, shallower pushes are encoder noise, not experiments",
-    "segmenter.contact_force": "N above the resting baseline that counts as contact",
-    "segmenter.max_release": "s, a release still moving after this ends anyway",
-    "estimator.refine": "follow each closed-form update by the whole-record fit of the data so far",
-    "estimator.undetermined_std": "relative std above which a parameter is reported as not determined",
-    "estimator.gamma_std": "std of the Poisson ratio above which it is reported as not determined",
-    "estimator.rate_std": "closed form: relative std of the relaxation rate above which E, c1, c2 are not determined",
-    "estimator.pre_contact": "s of data kept before each push (the markers' starting positions)",
-    "estimator.max_push_time": "s, a longer push is dropped so that memory stays bounded",
-    "estimator.stale_after": "s without a message after which a topic is stale (WARN; phases go on without it)",
-    "estimator.diagnostics_period": "s between /diagnostics messages",
-    "estimator.diagnose": "after release, find the effect the three-element model misses and publish the verdict "
-                          "on /rheo/diagnosis",
-    "rates.stage": "Hz", "rates.tactile": "Hz", "rates.markers": "Hz",
-    "material.E": "Pa", "material.c1": "Pa s", "material.c2": "Pa s", "material.gamma": "Poisson ratio",
-    "material.density": "kg/m^3",
-    "simulator.omega": "rad/s, constraint stabilisation (eq. 1)", "simulator.seed": "noise seed",
-    "simulator.effects": "hidden effects: relaxation_branch, adhesion, strain_stiffening, sensor_drift",
-}
+# Derived from the table (other modules import these names).
+DEFAULTS: dict[str, Any] = {p.name: p.default for p in PARAMETERS}
+PARAM_HELP: dict[str, str] = {p.name: p.help for p in PARAMETERS}
 
 
 class _Loader(yaml.SafeLoader):
@@ -161,8 +89,11 @@ def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
 
 
 def check_params(given: Mapping[str, Any], source: str = "<parameters>") -> dict[str, Any]:
-    """Defaults filled in, types checked (an integer is taken for a float), values
-    checked by building everything from them (``Setup.check``)."""
+    """Defaults filled in, types checked (an integer is taken for a float), each value
+    checked on its own (the table's checks), then together by building everything
+    from them (``Setup.check``)."""
+    # Renamed parameters: files and bags written under the old name still read.
+    given = {RENAMED.get(k, k): v for k, v in given.items()}
     unknown = sorted(k for k in given if k not in DEFAULTS and not k.startswith("effects."))
     if unknown:
         raise ParamsError(f"{source}: unknown parameter(s): {', '.join(unknown)}")
@@ -182,6 +113,10 @@ def check_params(given: Mapping[str, Any], source: str = "<parameters>") -> dict
             ok = type(value) is type(default)
         if not ok:
             raise ParamsError(f"{source}: {key}: expected {type(default).__name__}, got {value!r}")
+    for parameter in PARAMETERS:
+        refusal = parameter.refusal(params[parameter.name])
+        if refusal:
+            raise ParamsError(f"{source}: {refusal}")
     Setup(params).check(source)
     return params
 
@@ -216,28 +151,15 @@ class Setup:
     params: dict[str, Any]
 
     def check(self, source: str = "<parameters>") -> None:
-        """Build every part once; a value that cannot work raises ParamsError naming it."""
+        """Build every part once; a value that cannot work with the others raises
+        ParamsError naming it. Each value on its own is the table's to check
+        (``check_params``, before this)."""
         p = self.params
-        positive = [k for k in ("rates.stage", "rates.tactile", "rates.markers", "material.E", "material.c1",
-                                "material.c2", "material.density", "simulator.omega") if not p[k] > 0]
-        if positive:
-            raise ParamsError(f"{source}: {', '.join(positive)}: must be positive")
         for rate in ("rates.tactile", "rates.markers"):
             ratio = p["rates.stage"] / p[rate]
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
                 raise ParamsError(f"{source}: {rate}: {p[rate]} Hz must divide rates.stage ({p['rates.stage']} Hz): "
                                   "the simulator samples on the stage's grid")
-        if p["simulator.seed"] < 0 or min(p["tactile.noise"], p["tactile.resolution"], p["tactile.threshold"],
-                                          p["markers.noise"]) < 0:
-            raise ParamsError(f"{source}: simulator.seed and the sensor noises must not be negative")
-        # Counted before anything is built: the models' own errors cannot name the
-        # parameter, and a zero cell count only fails later, dividing by it.
-        least = {"tactile.rows": (1, "cells"), "tactile.cols": (1, "cells"), "markers.rows": (2, "markers"),
-                 "markers.cols": (2, "markers"), "mesh.refine": (1, "splits per element"),
-                 "simulator.refine": (1, "splits per element")}
-        for key, (n, what) in least.items():
-            if p[key] < n:
-                raise ParamsError(f"{source}: {key}: {p[key]} {what}; must be at least {n}")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
             self.mesh.refined(p["mesh.refine"])

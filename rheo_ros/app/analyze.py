@@ -1,0 +1,173 @@
+"""A bag in, the pipeline's answers out: ``analyze`` (``rheo analyze``: identify, compare,
+diagnose, add what is missing, refit) and ``estimate_bag`` (the estimator node's work
+on the bag, offline).
+
+Both drive the one pipeline (``rheo_ros.online.estimator.OnlineEstimator`` over the
+bag's samples, then the steps of ``rheo_ros.identification.pipeline``): the push
+``analyze`` reports is the release job the node identifies, its base model the node's
+final estimate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from rheo_ros.config.setup import Setup, check_params, load_params
+from rheo_ros.diagnosis.analysis import Analysis
+from rheo_ros.diagnosis.decision import Diagnosis
+from rheo_ros.diagnosis.discover import Progress, discover
+from rheo_ros.diagnosis.fits import add_effect, assess, polish
+from rheo_ros.identification.noise import sensor_noise
+from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts
+from rheo_ros.io.bag import BagError, bag_samples, read_params
+from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
+from rheo_ros.models.effects import Model, effect_class
+from rheo_ros.models.elements import three_element
+from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, estimate_stream
+from rheo_ros.online.segmenter import PhaseEvent
+from rheo_ros.record import RecordError
+
+TOPIC_OF = {"stage": STAGE_TOPIC, "image": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
+
+
+def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[str, Any]:
+    """The parameters to analyse ``bag`` with: ``params_file`` where given, else the bag's own.
+
+    Raises:
+        BagError: not a bag. RecordError: a bag without parameters and no file given.
+        ParamsError: a bad parameters file.
+    """
+    path = Path(bag)
+    if not (path / "metadata.yaml").is_file():
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    if params_file:
+        return check_params(load_params(params_file), str(params_file))
+    params = read_params(path)
+    if params is None:
+        raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
+    return check_params(params, f"{path}: parameters")
+
+
+def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
+    """The bag's measurement samples (``bag_samples``) with each frame's shape checked
+    against the parameters, and a topic with no message refused at the end.
+
+    Raises:
+        BagError: names the file, the topic and what is wrong.
+    """
+    counts = dict.fromkeys(TOPIC_OF, 0)
+    rows, cols = setup.tactile.rows, setup.tactile.cols
+    markers = setup.mesh.nodes.shape
+    for stream, t, data in bag_samples(bag):
+        if stream == "image" and data.shape != (rows, cols):
+            raise BagError(f"{bag}: {TACTILE_TOPIC}: image {data.shape[0]} x {data.shape[1]} at {t:.3f} s, "
+                              f"parameters say {rows} x {cols}")
+        if stream == "markers" and data.shape != markers:
+            raise BagError(f"{bag}: {MARKERS_TOPIC}: {data.shape[0]} markers at {t:.3f} s, "
+                              f"parameters say {markers[0]}")
+        counts[stream] += 1
+        yield stream, t, data
+    for stream, n in counts.items():
+        if not n:
+            raise BagError(f"{bag}: {TOPIC_OF[stream]}: no messages")
+
+
+def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
+    """Each push's release job, as the estimator node makes it from the bag (a release
+    still open at the end of the bag closed there, and said so).
+
+    Raises:
+        BagError: unreadable bag, missing topic, malformed message.
+        RecordError: no push whose release began.
+    """
+    stream = OnlineEstimator(setup, setup.segmenter_config(), replace(setup.estimator_config(), release_interval=0.0))
+    add = {"stage": stream.add_stage, "image": stream.add_image, "markers": stream.add_markers}
+    jobs: list[Job] = []
+    for name, t, data in checked_samples(bag, setup):
+        add[name](t, data)
+        jobs += stream.ready_jobs()
+    stream.finish()
+    jobs += stream.ready_jobs(silent=stream.streams)
+    releases = [j for j in jobs if j.event.name == "release"]
+    if not releases:
+        seen = ", ".join(sorted({j.event.name for j in jobs})) or "no phase"
+        raise RecordError(f"{bag}: {STAGE_TOPIC}: no push with a release (the stage never let go after a pull "
+                          f"and a keep; found {seen})")
+    return releases
+
+
+def analyze(
+    bag: str | Path, effects: Sequence[str] = (), params_file: str | Path | None = None,
+    discover_effects: bool = True, candidates: Sequence[str] | None = None,
+    progress: Progress | None = None, workers: int | None = None,
+) -> Analysis:
+    """Analyse a bag: identify, compare, diagnose, add what is missing, refit.
+
+    Args:
+        bag: a rosbag2 directory of the contract.
+        effects: effect ids to add to the base model, in order (``--add``).
+        params_file: parameters overriding the bag's own (``--params-file``).
+        discover_effects: run the diagnosis loop after the user's effects.
+        candidates: effect ids the diagnosis may try (default: the whole catalogue).
+        progress: called with a line of text at each step.
+        workers: processes for the candidates' fits (default: one per core).
+
+    Raises:
+        BagError: unreadable bag, missing topic, malformed message (the message names
+            the file, topic or field).
+        RecordError: data that cannot be identified (no push, a phase too short).
+        ParamsError: a bad parameters file.
+        KeyError: an unknown effect id.
+    """
+    for effect_id in effects:
+        effect_class(effect_id)  # an unknown id fails before any work
+    say = progress or (lambda _: None)
+    params = bag_params(bag, params_file)
+    setup = Setup(params)
+    say(f"reading {bag}")
+    releases = release_jobs(bag, setup)
+    job = releases[0]
+    if job.record is None:
+        raise RecordError(f"{bag}: experiment 1: too few samples to identify")
+    record = replace(job.record, source=str(bag))
+    forward = setup.forward_model()
+    noise = sensor_noise(record)
+    warnings = [w for w in (job.warning(),) if w]
+    if len(releases) > 1:
+        warnings.append(f"{len(releases)} pushes in the bag: push 1 analysed (t {job.event.t_start:.2f} s to "
+                        f"{job.event.t_end:.2f} s)")
+    say("closed form (eq. 6, 7, 10 / 14-17)")
+    closed = closed_form("release", record, forward)
+    if closed.failed:
+        warnings.append(f"closed form: {closed.estimate.method} reported in place of: {'; '.join(closed.failed)}")
+    for warning in warnings:
+        say(f"warning: {warning}")
+    say("fitting three_element over the whole record")
+    fit = fit_from_starts(record, forward, fit_starts(record, closed, setup.estimator_config()), noise=noise)
+    models = [assess(record, forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)]
+    for effect_id in effects:
+        current = models[-1]
+        say(f"fitting {current.name}+{effect_id}")
+        models.append(polish(record, forward, add_effect(record, forward, current, effect_id, noise), noise))
+    diagnoses: list[Diagnosis] = []
+    if discover_effects:
+        found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say, workers=workers)
+        models += found[1:]
+    return Analysis(str(bag), record, setup, forward, noise, closed.estimate, tuple(models), tuple(diagnoses),
+                    tuple(effects), tuple(warnings))
+
+
+def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None
+                 ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
+    """The estimator node's work on a bag, offline: same core, same samples, same order
+    of work (what a replay over DDS into the node must reproduce); ``diagnoses`` as in
+    ``estimate_stream``."""
+    params = params or read_params(path)
+    if params is None:
+        raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
+    setup = Setup(params)
+    estimator = OnlineEstimator(setup, setup.segmenter_config(), setup.estimator_config())
+    return estimate_stream(estimator, bag_samples(path), diagnoses)

@@ -1,0 +1,1 @@
+"""Configuration: the parameters table, the set-up built from it, node tuning."""

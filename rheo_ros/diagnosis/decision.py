@@ -1,0 +1,160 @@
+"""The missing-effect decision: when an effect is named missing, when the data cannot
+decide, when the model is adequate.
+
+Every model is fitted over the whole record with the same fixed weights, the sensor
+noise the data show (``identification.noise``), so each fit's cost is a chi-square
+and ``BIC = cost + k ln n`` compares models with different parameter counts ``k``
+on the same ``n`` readings. An effect is named missing only when all of these hold:
+
+1. it lowers the BIC by more than ``BIC_DECISIVE`` (10: "very strong" on Kass and
+   Raftery's scale; by chance, with two parameters, about once in 10^5 fits);
+2. the base model misfits where the effect shows (``Effect.shows_in``): the phase's
+   chi-square over its readings exceeds what noise gives by ``EXCESS_SIGMAS``
+   standard deviations;
+3. adding it removes at least ``EXCESS_EXPLAINED`` of that excess;
+4. the data pin its parameters down (``pipeline.is_determined``).
+
+(2) and (3) keep a small systematic error elsewhere (the sensors' quirks, a mesh
+not quite converged) from being claimed as an effect that can absorb it: a drift
+offset fitted to a bias in the keep is no drift when the readings before contact
+and after release are clean. When the best two candidates are within
+``BIC_DECISIVE`` of each other, the data cannot decide between them, and the
+diagnosis says so and names the experiments that would.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.experiment import PHASES
+from rheo_ros.identification.pipeline import is_determined
+from rheo_ros.models.effects import effect_class
+
+BIC_DECISIVE = 10.0
+# An effect's parameter is pinned down when its std is within this share of its value
+# (``pipeline.is_determined``): a std up to the value itself still says which effect it is.
+DETERMINED_STD = 1.0
+EXCESS_SIGMAS = 5.0
+EXCESS_EXPLAINED = 0.5
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect tried on top of the current model.
+
+    Attributes:
+        effect: its id.
+        fit: the model with it (None: every start failed, ``note`` says why).
+        delta_bic: BIC change against the current model (negative: better).
+        rmse_after: total force RMS with it (N).
+        excess_before, excess_after: chi-square excess over the noise in the phases
+            it shows in, without and with it (in standard deviations of that chi-square).
+        explained: the share of that excess it removes.
+        significant: it passes the BIC and signature tests (module docstring).
+        determined: the data bound each of its parameters (a std below the value; a
+            parameter run to the edge of its search means the effect vanished or degenerated).
+    """
+
+    effect: str
+    fit: ModelFit | None
+    delta_bic: float
+    rmse_after: float
+    excess_before: float
+    excess_after: float
+    explained: float
+    significant: bool
+    determined: bool
+    note: str = ""
+
+    @property
+    def eligible(self) -> bool:
+        """An effect the data both ask for and pin down."""
+        return self.significant and self.determined
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The verdict on one model.
+
+    Attributes:
+        model: the model judged.
+        adequate: no candidate earns its parameters.
+        missing_effect: the effect to add, or None (adequate, or undecided).
+        candidates: every effect tried, best BIC first.
+        evidence: a paragraph a person can read.
+        undecided: the effects the data cannot tell apart (empty when decided).
+    """
+
+    model: str
+    adequate: bool
+    missing_effect: str | None
+    candidates: tuple[Candidate, ...]
+    evidence: str
+    undecided: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        return {
+            "adequate": self.adequate, "missing_effect": self.missing_effect,
+            "candidates": [{"effect": c.effect, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
+                            "explained": _finite(c.explained), "eligible": c.eligible} for c in self.candidates],
+            "evidence": self.evidence, "undecided": list(self.undecided),
+        }
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The discovery loop's answer on a push, flattened once for every reader: what the
+    estimator node publishes (``/rheo/diagnosis``) and what ``rheo analyze`` reports.
+
+    Attributes:
+        adequate: the last model fits within the noise and no effect earns its
+            parameters (None: not diagnosed).
+        missing_effects: the effects added, in the order found.
+        undecided: the effects the data cannot tell apart on the last model.
+        candidates: every effect tried on the base model, best BIC first.
+        evidence: the paragraphs of every step, in order.
+    """
+
+    adequate: bool | None
+    missing_effects: tuple[str, ...]
+    undecided: tuple[str, ...]
+    candidates: tuple[Candidate, ...]
+    evidence: str
+
+    @classmethod
+    def of(cls, diagnoses: Sequence[Diagnosis]) -> Verdict:
+        if not diagnoses:
+            return cls(None, (), (), (), "not diagnosed")
+        return cls(adequate=bool(diagnoses[-1].adequate),
+                   missing_effects=tuple(d.missing_effect for d in diagnoses if d.missing_effect),
+                   undecided=diagnoses[-1].undecided, candidates=diagnoses[0].candidates,
+                   evidence=" ".join(d.evidence for d in diagnoses))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def _excess(chi: float, n: int) -> float:
+    """A chi-square's excess over its expectation in units of its std (sqrt(2n))."""
+    return (chi - n) / np.sqrt(2.0 * n) if n else 0.0
+
+
+def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
+    """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
+    phases = effect_class(effect_id).shows_in or PHASES
+    chi_b, n_b = current.phase_chi2(phases)
+    chi_a, n_a = with_effect.phase_chi2(phases)
+    before, after = _excess(chi_b, n_b), _excess(chi_a, n_a)
+    explained = (chi_b - chi_a) / (chi_b - n_b) if chi_b > n_b else 0.0
+    delta = with_effect.bic - current.bic
+    significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED)
+    std, values = with_effect.estimate.std, with_effect.estimate.params
+    # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
+    determined = all(is_determined(values[k], std[k], DETERMINED_STD) for k in values if k.startswith(effect_id + "."))
+    return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
+                     float(explained), significant, determined)

@@ -1,0 +1,100 @@
+"""The evidence: one paragraph a person reads, on where a model fails, what each candidate
+effect changes and the verdict."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from rheo_ros.diagnosis.decision import BIC_DECISIVE, DETERMINED_STD, EXCESS_SIGMAS, Candidate
+from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.identification.pipeline import is_determined
+from rheo_ros.models.effects import effect_class
+
+
+def _worst_phase(fit: ModelFit) -> tuple[str, float, tuple[tuple[float, float], ...]]:
+    """The phase whose force residuals stand out most (name, RMS over noise, windows)."""
+    worst = ("", 0.0, ())
+    for s in fit.comparison.stats:
+        if s.signal == "total" and s.rms_over_noise > worst[1]:
+            worst = (s.phase, s.rms_over_noise, s.windows)
+    return worst
+
+
+def _windows_text(windows: tuple[tuple[float, float], ...]) -> str:
+    if not windows:
+        return ""
+    shown = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in windows[:3])
+    more = f" and {len(windows) - 3} more" if len(windows) > 3 else ""
+    return f", systematic over {shown}{more}"
+
+
+def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | None,
+                  undecided: tuple[str, ...]) -> str:
+    """One paragraph: where the model fails, what each candidate changes, the verdict."""
+    phase, ratio, windows = _worst_phase(current)
+    head = (f"{current.name}: total force RMS {current.rmse_force:.3g} N over the record")
+    if phase:
+        head += f"; worst in the {phase} phase at {ratio:.3g} x the sensor noise{_windows_text(windows)}"
+    parts = [head + "."]
+    by_id = {c.effect: c for c in tried}
+    if missing:
+        c = by_id[missing]
+        cls = effect_class(missing)
+        shows = ", ".join(cls.shows_in) or "every phase"
+        effect = next(e for e in c.fit.model.effects if e.id == missing)
+        before = {p: current.rmse_by_phase.get(p, np.nan) for p in cls.shows_in if p in current.rmse_by_phase}
+        moved = "; ".join(f"{p} RMS {before[p]:.3g} -> {c.fit.rmse_by_phase[p]:.3g} N" for p in before)
+        parts.append(
+            f"Adding {missing} ({effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
+            f"{current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows}) and removes "
+            f"{100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
+        std = c.fit.estimate.std
+        loose = [k for k, v in std.items() if k.startswith(missing + ".")
+                 and not is_determined(c.fit.estimate.params[k], v, 0.5)]
+        if loose:
+            names = " and ".join(k.split(".", 1)[1] for k in loose)
+            verb, them = ("is", "it") if len(loose) == 1 else ("are", "them")
+            parts.append(f"Its {names} {verb} not determined by these data (std above half the value): "
+                         f"{cls.resolving_experiment} would pin {them} down.")
+        parts.append(f"Verdict: {missing} is missing.")
+    elif undecided:
+        rivals = [by_id[e] for e in undecided]
+        listed = " and ".join(f"{c.effect} (BIC -{-c.delta_bic:.3g}, RMS {c.rmse_after:.3g} N)" for c in rivals)
+        if len(rivals) > 1 and all(c.determined for c in rivals):
+            why = f"they explain the misfit within {BIC_DECISIVE:g} of each other in BIC"
+        else:
+            why = "the data do not bound " + ", ".join(
+                k for c in rivals for k, v in c.fit.estimate.std.items()
+                if k.startswith(c.effect + ".") and not is_determined(c.fit.estimate.params[k], v, DETERMINED_STD))
+        parts.append(f"The data cannot decide: {listed}; {why}. To decide, record "
+                     + "; or ".join(effect_class(c.effect).resolving_experiment for c in rivals) + ".")
+    else:
+        best = tried[0] if tried else None
+        if best is None:
+            parts.append("No candidate effect left to try.")
+        else:
+            why = []
+            for c in tried[:3]:
+                if c.fit is None:
+                    why.append(f"{c.effect}: {c.note}")
+                elif c.delta_bic >= -BIC_DECISIVE:
+                    why.append(f"{c.effect} changes BIC by {c.delta_bic:+.3g}")
+                elif c.excess_before <= EXCESS_SIGMAS:
+                    why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} but the phases it shows in "
+                               f"({', '.join(effect_class(c.effect).shows_in)}) fit within the noise "
+                               f"({c.excess_before:.2g} sd)")
+                else:
+                    why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} but removes only "
+                               f"{100 * c.explained:.0f} % of the misfit where it shows")
+            parts.append("No effect earns its parameters: " + "; ".join(why) + ".")
+        misfits = current.misfits
+        if misfits:
+            parts.append("Verdict: the model misfits (" + ", ".join(
+                f"{k} at {v:.3g} x the noise" for k, v in sorted(misfits.items(), key=lambda kv: -kv[1]))
+                + ") but no effect in the catalogue explains it: an effect not yet written (register your own), "
+                "or a wrong set-up (boundary, geometry, sensor layout).")
+        else:
+            parts.append(f"Verdict: {current.name} is adequate for these data.")
+    return " ".join(parts)

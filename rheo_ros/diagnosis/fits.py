@@ -1,0 +1,182 @@
+"""Models fitted to a record for the diagnosis: the three-element model with effects,
+over the whole record, weighted by the sensor noise (so each fit's cost is a
+chi-square), with their residuals compared to the measurements."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rheo_ros.diagnosis.compare import Comparison, compare
+from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.identification.closed_form import from_final_displacement
+from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.fit import WholeRecordProblem, fit_record, live_ceiling, misfit_limit
+from rheo_ros.identification.noise import SensorNoise, sensor_noise
+from rheo_ros.identification.pipeline import fit_weights, force_error
+from rheo_ros.models.effects import Effect, FitContext, Model, effect_class
+from rheo_ros.models.elements import three_element
+from rheo_ros.record import Record, RecordError
+
+# A candidate the data do not support wanders (a vanishing arm); its fit is stopped here.
+MAX_ITERATIONS = 25
+
+
+@dataclass(frozen=True)
+class ModelFit:
+    """One model fitted to a record.
+
+    Attributes:
+        model: the model with its fitted values.
+        estimate: the whole-record fit (params with gamma, covariance, std, message).
+        comparison: its residual statistics per phase and signal.
+        cost: chi-square of the fit against the sensor noise; samples: readings (n).
+        rmse_force: RMS error of the total bottom force over the record (N), every
+            reading but those at a phase boundary (mid-jump), the model read through the
+            tactile dead band (``DeadBand.reading``).
+        rmse_by_phase: the same per phase (pull, keep, release).
+        prediction_total: the model's total bottom force at the record's force times (N).
+    """
+
+    model: Model
+    estimate: Estimate
+    comparison: Comparison
+    cost: float
+    samples: int
+    rmse_force: float
+    rmse_by_phase: dict[str, float]
+    prediction_total: np.ndarray = field(repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        return tuple(e.id for e in self.model.effects)
+
+    @property
+    def bic(self) -> float:
+        return self.estimate.statistics.bic
+
+    @property
+    def delays(self) -> tuple[float, float]:
+        stats = self.estimate.statistics
+        return stats.delay("tactile"), stats.delay("marker")
+
+    @property
+    def misfits(self) -> dict[str, float]:
+        """Signals whose residual RMS exceeds what the sensor noise allows (on the readings
+        the comparison counts): ratio by signal."""
+        return {signal: float(ratio) for signal, ratio in self.estimate.statistics.fit_to_noise.items()
+                if np.isfinite(ratio) and ratio > misfit_limit(self.comparison_samples(signal))}
+
+    def comparison_samples(self, signal: str) -> int:
+        return sum(s.samples for s in self.comparison.stats if s.signal == signal)
+
+    def phase_chi2(self, phases: Iterable[str]) -> tuple[float, int]:
+        """Chi-square of the force residuals (every segment, live readings) over
+        ``phases`` and the readings it counts."""
+        chi, n = 0.0, 0
+        for s in self.comparison.stats:
+            if s.signal.startswith("P") and s.phase in phases and s.noise > 0:
+                chi += s.samples * (s.rms / s.noise) ** 2
+                n += s.samples
+        return chi, n
+
+
+def fit_model(
+    record: Record, forward: QuasiStaticFE, effects: Sequence[Effect], start: dict[str, float],
+    noise: SensorNoise | None = None, discretisation: bool = False,
+) -> ModelFit:
+    """Fit the three-element model with ``effects`` (their values are the start) over
+    the whole record, weighted by the sensor noise; ``start``: the base parameters
+    (E, c1, c2, gamma) to start from."""
+    noise = noise or sensor_noise(record)
+    model = Model(three_element(1.0, 1.0, 1.0), tuple(effects))
+    initial = Estimate(params={**start, **{k: v for e in effects for k, v in e.parameters.items()}},
+                       method="start", equations=())
+    est = fit_record(record, initial, model=model, forward=forward, weights=fit_weights(noise),
+                     discretisation=discretisation, max_iterations=MAX_ITERATIONS)
+    return assess(record, forward, model, est, noise)
+
+
+def polish(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorNoise | None = None) -> ModelFit:
+    """Fit ``fit``'s model again from its values, to convergence (no iteration cap) and
+    with the mesh's discretisation error in its std: the model a report shows."""
+    noise = noise or sensor_noise(record)
+    est = fit_record(record, fit.estimate, model=fit.model, forward=forward, weights=fit_weights(noise),
+                     discretisation=True)
+    return assess(record, forward, fit.model, est, noise)
+
+
+def assess(record: Record, forward: QuasiStaticFE, model: Model, est: Estimate, noise: SensorNoise) -> ModelFit:
+    """``model`` with the fitted values of ``est``, compared with the record."""
+    model = model.with_parameters(est.params)
+    stats = est.statistics
+    delays = (stats.delay("tactile"), stats.delay("marker"))
+    comparison = compare(record, model, est.params["gamma"], forward, delays, noise)
+    p = forward.predict(model, est.params["gamma"], record.profile(), record.force_t - delays[0],
+                        record.marker_t - delays[1])
+    rmse, by_phase = force_error(record, p.force)
+    return ModelFit(model, est, comparison, stats.cost, stats.readings, rmse, by_phase, p.force.sum(axis=1))
+
+
+def _context(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorNoise) -> FitContext:
+    tactile, marker = fit.delays
+    p = forward.predict(fit.model, fit.estimate.params["gamma"], record.profile(), record.force_t - tactile,
+                        record.marker_t - marker)
+    return FitContext(record.profile(), fit.estimate.params, float(np.max(record.force)), record.force_t,
+                      record.force - p.force, noise.force_live)
+
+
+def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effect: Effect,
+                noise: SensorNoise) -> float:
+    """The chi-square of ``current`` + ``effect`` as given (no fit); inf if it cannot be evaluated."""
+    model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
+    problem = WholeRecordProblem(record, model, noise.force_std, noise.marker_std, forward=forward,
+                                 live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std))
+    tactile, marker = current.delays
+    params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}
+    try:
+        r = problem.residuals(params)
+    except (ValueError, np.linalg.LinAlgError):
+        return np.inf
+    return float(r @ r) if np.all(np.isfinite(r)) else np.inf
+
+
+def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
+               noise: SensorNoise) -> ModelFit:
+    """``current`` + the effect, fitted from the best of the effect's starts (by the
+    chi-square there: a fit from each would cost a fit each)."""
+    starts = effect_class(effect_id).starts(_context(record, forward, current, noise))
+    start = min(starts, key=lambda e: _start_cost(record, forward, current, e, noise))
+    return fit_model(record, forward, (*current.model.effects, start), current.estimate.params, noise)
+
+
+def restart_from_corrected(record: Record, forward: QuasiStaticFE, fit: ModelFit,
+                           noise: SensorNoise | None = None) -> ModelFit | None:
+    """The model of ``fit`` fitted again from a fresh closed form, where it has effects on
+    the sensor's side (``measured_force``: drift, adhesion): their predicted share is taken
+    out of the readings, the paper's equations identify E, c1, c2 and gamma on what is
+    left, and the fit starts there. The base's closed form on the raw readings can be far
+    off (a 0.26 N drift put E at 12 % of the truth) and its fit stay in a local minimum
+    that a further effect then seems to explain. None: no sensor-side effect, or no
+    closed form on the corrected readings."""
+    sensor_side = [e for e in fit.model.effects if type(e).measured_force is not Effect.measured_force]
+    if not sensor_side:
+        return None
+    noise = noise or sensor_noise(record)
+    bare = replace(fit.model, effects=tuple(e for e in fit.model.effects if e not in sensor_side))
+    gamma, (tactile, marker) = fit.estimate.params["gamma"], fit.delays
+    t_force, t_markers = record.force_t - tactile, record.marker_t - marker
+    share = (forward.predict(fit.model, gamma, record.profile(), t_force, t_markers).force
+             - forward.predict(bare, gamma, record.profile(), t_force, t_markers).force)
+    try:
+        closed = from_final_displacement(replace(record, force=record.force - share), forward=forward)
+        start = {**fit.estimate.params, **{k: closed.params[k] for k in ("E", "c1", "c2", "gamma")}}
+        return fit_model(record, forward, fit.model.effects, start, noise)
+    except (RecordError, ValueError, np.linalg.LinAlgError):
+        return None

@@ -1,0 +1,220 @@
+"""The steps every identification of a push takes, the same online (the estimator
+node, phase by phase) and offline (``rheo analyze``, the whole bag): the closed form
+of a phase, the whole-record fit from its starts, which parameters the data leave
+undetermined, and the total force's error.
+
+Both drivers call these functions and nothing else decides these questions, so the
+node publishes for a bag what ``rheo analyze`` reports for it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from rheo_ros.config.tuning import EstimatorConfig
+from rheo_ros.experiment import PUSH_PHASES, phase_of
+from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.identification.closed_form import from_final_displacement, from_pull, from_pull_and_keep
+from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
+from rheo_ros.identification.fit import away_from_boundaries, fit_record
+from rheo_ros.identification.noise import SensorNoise, Weights, sensor_noise
+from rheo_ros.models.effects import Model
+from rheo_ros.models.elements import three_element
+from rheo_ros.record import Record, RecordError
+
+# The closed forms a phase's data allow, best first: the first with a solution is
+# reported, the first two are the whole-record fit's starts. After release the
+# final-displacement solution (eq. 6+14, 7, 15-17); the pull-and-keep solution (eq. 6,
+# 7, 10) is a second start which an effect after release (adhesion, drift) cannot
+# corrupt, and stands in where the first has no solution; eq. 6 on the pull alone last.
+CLOSED_FORMS: dict[str, tuple[tuple[str, Callable[..., Estimate]], ...]] = {
+    "pull": (("eq. 6 (pull)", from_pull),),
+    "keep": (("eq. 6, 7, 10 (pull and keep)", from_pull_and_keep), ("eq. 6 (pull)", from_pull)),
+    "release": (("eq. 6+14, 7, 15-17 (final displacement)", from_final_displacement),
+                ("eq. 6, 7, 10 (pull and keep)", from_pull_and_keep), ("eq. 6 (pull)", from_pull)),
+}
+# A fit from each start is capped (a start in the wrong basin wanders); the best is then
+# fitted to convergence.
+SCREENING_ITERATIONS = 25
+# A slower relaxation (c2 this many times larger) that fits the data as well means the
+# data set no upper bound on c2: its std from the local curvature would mislead.
+PROFILE_FACTOR = 30.0
+
+
+@dataclass(frozen=True)
+class ClosedForm:
+    """A phase's closed form: the solution reported, the solutions the fit starts from,
+    and the closed forms that had none (each with its reason)."""
+
+    estimate: Estimate
+    starts: tuple[dict[str, float], ...]
+    failed: tuple[str, ...] = ()
+
+
+def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedForm:
+    """The paper's solution for the data of a push up to the end of ``phase``
+    (``CLOSED_FORMS``), with a note in its message naming the better ones that failed.
+
+    Raises:
+        RecordError: no closed form has a solution (each reason named).
+    """
+    solutions: list[Estimate] = []
+    failed: list[str] = []
+    for label, identify in CLOSED_FORMS[phase]:
+        try:
+            solutions.append(identify(record, forward=forward))
+        except RecordError as exc:
+            failed.append(f"{label}: {exc}")
+        if len(solutions) == 2:
+            break
+    if not solutions:
+        raise RecordError(f"{record.source}: no closed form has a solution ({'; '.join(failed)})")
+    reported = solutions[0]
+    if failed:
+        note = f"{reported.method} reported in place of: {'; '.join(failed)}"
+        reported = replace(reported, message=f"{note}; {reported.message}" if reported.message else note)
+    return ClosedForm(reported, tuple(s.params for s in solutions), tuple(failed))
+
+
+def fit_weights(noise: SensorNoise) -> Weights | None:
+    """The sensor noise where the data show it (the fit's cost is then a chi-square,
+    comparable across models); None where they do not (a noise-free record): the fit
+    then weights by its own residuals."""
+    return noise.weights if noise.known else None
+
+
+def relaxation_in_view(record: Record, start: dict[str, float]) -> dict[str, float]:
+    """``start`` with c2 lowered, if need be, so that the relaxation time (c1 + c2) / E is
+    the record's length (c1 / E plus that length where c1 alone takes longer). An
+    ill-posed closed form leaves its raw values wherever its search stopped, and a fit
+    from a c2 far too slow strands where c2 has no gradient (seen: c2 1.7e14 ends at
+    c2 -> inf, c1 3.8 std off; from c2 <= 1e12 every start tried reaches the optimum)."""
+    if not all(np.isfinite(start[n]) and start[n] > 0 for n in ("E", "c1", "c2")):
+        return start
+    span = float(record.force_t[-1] - record.profile().t_pull_start)
+    c2 = start["E"] * span - start["c1"]
+    c2 = c2 if c2 > 0 else start["E"] * span
+    return {**start, "c2": min(start["c2"], c2)}
+
+
+def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig) -> list[dict[str, float]]:
+    """Where the whole-record fit starts: the closed forms' solutions and, where the
+    reported one leaves a parameter undetermined, it again with the relaxation in view."""
+    starts = list(closed.starts)
+    if undetermined(record, closed.estimate, config):
+        in_view = relaxation_in_view(record, closed.estimate.params)
+        if in_view != closed.estimate.params:
+            starts.append(in_view)
+    return starts
+
+
+def fit_from_starts(record: Record, forward: QuasiStaticFE, starts: Sequence[dict[str, float]],
+                    model: Model | None = None, noise: SensorNoise | None = None) -> Estimate:
+    """The whole-record fit: from each start (capped at SCREENING_ITERATIONS), the most
+    likely kept (lowest deviance; a NaN never wins), then fitted to convergence with the
+    mesh's discretisation error in its std.
+
+    Raises:
+        RecordError: no start could be fitted.
+    """
+    noise = noise or sensor_noise(record)
+    weights = fit_weights(noise)
+    model = model or Model(three_element(1.0, 1.0, 1.0))
+    fits: list[Estimate] = []
+    errors: list[str] = []
+    for start in starts:
+        initial = Estimate(params={**model.parameters, **start}, method="start", equations=())
+        try:
+            fits.append(fit_record(record, initial, model=model, forward=forward, weights=weights,
+                                   discretisation=False, max_iterations=SCREENING_ITERATIONS))
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            errors.append(f"{type(exc).__name__}: {exc}")
+    if not fits:
+        raise RecordError(f"{record.source}: the whole-record fit failed from every start ({'; '.join(errors)})")
+    best = min(fits, key=lambda f: np.nan_to_num(f.statistics.deviance, nan=np.inf))
+    return fit_record(record, best, model=model, forward=forward, weights=weights, discretisation=True)
+
+
+def relaxation_unseen(record: Record, fit: Estimate, forward: QuasiStaticFE) -> str:
+    """Profile of the likelihood along c2: the fit again with c2 held PROFILE_FACTOR times
+    larger (same weights); a cost within 4 (2 std) says the data cannot tell. "" when
+    they can."""
+    stats = fit.statistics
+    held = {"c2": fit.params["c2"] * PROFILE_FACTOR}
+    try:
+        alt = fit_record(record, fit, fixed=held, forward=forward, discretisation=False,
+                         weights=Weights(stats.force_weights, stats.weights["markers"]))
+    except (ValueError, np.linalg.LinAlgError):
+        return ""
+    delta = alt.statistics.cost - stats.cost
+    if delta < 4.0:
+        return (f"the data fit as well with c2 {PROFILE_FACTOR:g} x larger (cost +{delta:.2g}): "
+                "the relaxation is not seen")
+    return ""
+
+
+def undetermined(record: Record, est: Estimate, config: EstimatorConfig, unseen: str = "") -> dict[str, str]:
+    """The parameters of ``est`` these data leave undetermined, each with why (and the
+    experiment that would determine it): the one rule for every estimate.
+
+    A closed form (no covariance) is undetermined where its relaxation rate is (relative
+    std above ``config.rate_std``); a fit's parameter where its std exceeds
+    ``config.undetermined_std`` of its value (gamma: ``config.gamma_std`` absolute), or
+    where ``unseen`` (``relaxation_unseen``) says the relaxation is not seen. Gamma at
+    its bound is never determined.
+    """
+    names = tuple(n for n in BASE_PARAMETERS if n in est.params)
+    values = np.array([est.params[n] for n in names])
+    out: dict[str, str] = {}
+    profile = record.profile()
+    rate = values[0] / (values[1] + values[2])
+    seen = min(record.force_t[-1], profile.t_keep_end) - profile.t_pull_start
+    longer = (f"a keep of at least {2.0 / rate:.0f} s (2 relaxation times) determines it" if 2.0 / rate < 1e5
+              else "a keep long enough for the force to relax visibly determines it")
+    if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
+        out["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
+                        "inside the physical range; a deeper push determines it")
+    if est.covariance is None:
+        rel = est.residual_rms.get("rate_rel_std", 0.0)
+        if not rel <= config.rate_std:
+            for n in names:   # every parameter of the equations rests on the rate
+                out[n] = (f"the force curved too little to show its relaxation rate (+-{100 * rel:.0f} %, "
+                          f"rate x time seen = {rate * seen:.2g}); {longer}")
+    else:
+        std = np.sqrt(np.clip(np.diag(est.covariance), 0, None))
+        for i, n in enumerate(names):
+            if n == "gamma":
+                if not std[i] <= config.gamma_std:
+                    out[n] = (f"std {std[i]:.2g}: the markers' lateral motion is within their noise; "
+                              "a deeper push determines it")
+            elif not std[i] <= config.undetermined_std * abs(values[i]):
+                why = f"std {100 * std[i] / abs(values[i]):.0f} % of the value"
+                out[n] = f"{why}; {longer}" if n in ("E", "c2") else why
+    if unseen:
+        for n in ("E", "c2"):
+            out[n] = f"{unseen}; {longer}"
+    return out
+
+
+def is_determined(value: float, std: float, relative_limit: float) -> bool:
+    """A parameter the data pin down: a finite std within ``relative_limit`` of its value."""
+    return bool(np.isfinite(std) and std <= relative_limit * abs(value))
+
+
+def force_error(record: Record, predicted: np.ndarray) -> tuple[float, dict[str, float]]:
+    """RMS error (N) of the total bottom force over the record and per phase, with the
+    model ``predicted`` (T, nodes) at the record's force stamps read as the array reads
+    (through its dead band: after the let-go a force below it reads zero, not its small
+    true value), leaving out readings within a phase boundary's guard (mid-jump there;
+    the quasi-static model has jumped)."""
+    profile = record.profile()
+    away = away_from_boundaries(record.force_t, profile)
+    err = (record.reading(predicted).sum(axis=1) - record.force.sum(axis=1))[away]
+    which = phase_of(record.force_t[away], profile)
+    by_phase = {name: float(np.sqrt(np.mean(err[which == i] ** 2)))
+                for i, name in enumerate(PUSH_PHASES, start=1) if np.any(which == i)}
+    return float(np.sqrt(np.mean(err**2))), by_phase
+
