@@ -9,9 +9,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
-from conftest import BAGS
+import yaml
+from conftest import BAGS, TRUTH
 
 
 def rheo(*args: str) -> subprocess.CompletedProcess:
@@ -38,7 +38,33 @@ def bad_params(tmp_path: Path) -> list[str]:
     return [str(BAGS / "clean_short_keep"), "--params-file", str(f)]
 
 
+def without_params(tmp_path: Path) -> list[str]:
+    """The reference bag with the parameters file taken out of its metadata."""
+    bag = tmp_path / "bag"
+    shutil.copytree(BAGS / "clean_short_keep", bag)
+    meta = bag / "metadata.yaml"
+    info = yaml.safe_load(meta.read_text())
+    info["rosbag2_bagfile_information"]["custom_data"] = {}
+    meta.write_text(yaml.safe_dump(info))
+    return [str(bag)]
+
+
+def without_markers(tmp_path: Path) -> list[str]:
+    """A bag of the stage and the tactile array, no marker topic."""
+    from rheo_ros.config.setup import Setup, load_params
+    from rheo_ros.io.bag import BagWriter
+    from rheo_ros.io.messages import STAGE_TOPIC, TACTILE_TOPIC
+
+    setup = Setup(load_params(None))
+    with BagWriter(tmp_path / "bag", setup.params, topics={STAGE_TOPIC: "sensor_msgs/msg/JointState",
+                                                           TACTILE_TOPIC: "sensor_msgs/msg/Image"}):
+        pass
+    return [str(tmp_path / "bag")]
+
+
 CASES = {
+    "no stored parameters": (without_params, r"bag: no parameters in the bag's metadata; give --params-file"),
+    "missing topic": (without_markers, r"bag: /markers/mesh: no messages|bag: /stage/joint_states: no messages"),
     "not a bag": (lambda tmp: [str(tmp)], r"not a rosbag2 directory"),
     "truncated mcap": (lambda tmp: [str(damaged(tmp, "truncated"))], r"cannot read bag"),
     "corrupted mcap": (lambda tmp: [str(damaged(tmp, "corrupted"))], r"cannot read bag"),
@@ -69,13 +95,12 @@ def test_a_bag_gives_the_contracts_json(tmp_path):
     assert [p["name"] for p in report["phases"]] == ["pull", "keep", "release"]
     assert set(report["estimate"]) >= {"E", "c1", "c2", "gamma", "std"}
     assert set(report["estimate"]["std"]) == {"E", "c1", "c2", "gamma"}
-    # The closed form's std: the base fit's and its distance from it (a misspecified bag:
-    # the two part, and the std covers the closed form's distance from the efficient fit).
-    base = report["models"][0]
-    for k, s in report["estimate"]["std"].items():
-        gap = report["estimate"][k] - base["params"][k]
-        assert s == pytest.approx(np.hypot(base["std"][k], gap), rel=1e-12)
-        assert s >= abs(gap)
+    # The closed form's std is the base fit's combined with its distance from that fit: on a
+    # misspecified bag (strain stiffening hidden) the two part, and the std must cover the
+    # closed form's own error against the simulated truth: within 3 std (measured: E +1.3,
+    # c1 +1.1, c2 +1.1, gamma -2.3 std).
+    for k, v in TRUTH.items():
+        assert abs(report["estimate"][k] - v) < 3 * report["estimate"]["std"][k], (k, report["estimate"][k])
     for m in report["models"]:
         assert set(m) >= {"name", "effects", "params", "rmse_force", "rmse_by_phase", "bic"}
         assert set(m["rmse_by_phase"]) == {"pull", "keep", "release"}
@@ -88,3 +113,20 @@ def test_a_bag_gives_the_contracts_json(tmp_path):
     assert all(set(c) >= {"effect", "delta_bic", "rmse_after"} for c in d["candidates"])
     # The terminal shows the models side by side and the verdict.
     assert "three_element+strain_stiffening" in out.stdout and "Verdict: strain_stiffening is missing" in out.stdout
+
+
+@pytest.mark.parametrize("name", ["clean_short_keep", "clean_long_keep"])
+def test_the_json_closed_form_recovers_the_truth_on_clean_bags(name, tmp_path):
+    """The paper's identification in the JSON ``estimate`` on data from the package's own
+    simulator (self-consistency): each parameter within 3 of its reported std of the
+    simulated clay (measured: 1.0-1.1 std: the std holds the closed form's distance from
+    the whole-record fit, which sits near the truth), and that std below 5 % of the value
+    (measured: 2.1-3.7 % on the short keep, 0.5-2.0 % on the long one)."""
+    out_json = tmp_path / "report.json"
+    out = rheo("analyze", str(BAGS / name), "--json", str(out_json), "--quiet", "--no-discover")
+    assert out.returncode == 0, out.stderr
+    est = json.loads(out_json.read_text())["estimate"]
+    for k, v in TRUTH.items():
+        assert abs(est[k] - v) < 3 * est["std"][k], (k, est[k], est["std"][k])
+        assert est["std"][k] < 0.05 * abs(v), (k, est["std"][k])
+

@@ -12,7 +12,8 @@ from mcap_ros2.decoder import DecoderFactory
 from rheo_ros.app.simulate import simulate_to_bag
 from rheo_ros.config.setup import Setup, load_params
 from rheo_ros.identification.closed_form import from_final_displacement
-from rheo_ros.io.bag import BagError, read_bag, read_params
+from rheo_ros.io.bag import read_bag, read_params
+from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.response import respond, stage_program
 

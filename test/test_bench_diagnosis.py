@@ -27,7 +27,9 @@ def test_two_quick_bags_give_a_complete_confusion_table():
     assert bags[0]["size"] == 0.0 and bags[0]["effect"] == {}
     assert bags[1]["size"] > 0 and set(bags[1]["effect"]) == {"stiffness", "viscosity"}
     assert result["clean_bags"] == 1
-    assert 0 <= result["false_claims_on_clean"] <= 1
+    # The clean bag is called clean, the hidden relaxation branch named (seed 4, quick bags).
+    assert [b["diagnosed"] for b in bags] == ["none", "relaxation_branch"], [b["message"] for b in bags]
+    assert result["false_claims_on_clean"] == 0
     assert result["seconds_median"] <= result["seconds_max"]
     table = diagnosis.format_table(result)
     assert "detection threshold" in table

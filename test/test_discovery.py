@@ -48,7 +48,7 @@ HIDDEN = [
 
 
 @pytest.mark.parametrize("effect,values,seed", HIDDEN, ids=[f"{e}-{s}" for e, _, s in HIDDEN])
-def test_a_hidden_effect_is_named_and_adding_it_halves_the_force_error(tmp_path, effect, values, seed):
+def test_a_hidden_effect_is_named_and_adding_it_cuts_the_force_error_fivefold(tmp_path, effect, values, seed):
     bag = make_bag(tmp_path, "run", seed, {effect: values})
     result = rheo_ros.analyze(bag)
     report = result.to_json()
@@ -57,14 +57,16 @@ def test_a_hidden_effect_is_named_and_adding_it_halves_the_force_error(tmp_path,
     assert report["diagnosis"]["adequate"]
     base, fixed = report["models"][0], report["models"][1]
     assert fixed["effects"] == [effect]
-    assert fixed["rmse_force"] <= 0.5 * base["rmse_force"]          # measured: 8-100 x lower
+    # Measured 8-100 x lower: a fifth fails if the remaining error doubles at the low end.
+    assert fixed["rmse_force"] <= 0.2 * base["rmse_force"]
     assert fixed["bic"] < base["bic"]
     # With the effect, the residuals are at the sensor noise (1 within the misfit limit).
     assert max(v for v in fixed["fit_to_noise"].values() if v is not None) < 1.25
-    # The hidden effect's own parameters come back (within 10 %: a fit of noisy data
-    # through another discretisation; measured within 1 %).
+    # The hidden effect's own parameters come back within 4 of their reported std (which
+    # holds the noise and the mesh's discretisation; measured within 1 % of the value).
     for name, value in values.items():
-        assert fixed["params"][f"{effect}.{name}"] == pytest.approx(value, rel=0.1, abs=0.1 * abs(value))
+        key = f"{effect}.{name}"
+        assert abs(fixed["params"][key] - value) < 4 * fixed["std"][key], (key, fixed["params"][key], fixed["std"][key])
 
 
 CLEAN = [

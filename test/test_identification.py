@@ -239,7 +239,10 @@ def test_slow_release_is_identified_by_the_fit_that_follows_the_contact(speed):
 # -- the uniaxial block (geometry uniaxial: both faces frictionless) ---------------------
 
 BLOCK = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
-BLOCK_TOL = 0.1     # % per parameter, noise-free (the issue's tolerance)
+# % per parameter, noise-free: under twice the largest error measured (so a doubling
+# fails), far above what another machine's BLAS moves (~1e-7 %).
+ANALYTIC_TOL = 1.5e-4   # measured 9.2e-5 % (the closed form's settling assumption)
+DYNAMIC_TOL = 1.0e-3    # measured 6.3e-4 % (the dynamic FE's inertia and mesh)
 
 
 def _block_setup() -> Setup:
@@ -267,12 +270,12 @@ def analytic_block_record(setup: Setup, truth: dict[str, float], profile: StageP
                   source="analytic uniaxial block")
 
 
-def test_analytic_uniaxial_block_is_identified_within_a_tenth_of_a_percent():
+def test_analytic_uniaxial_block_is_identified_to_its_settling_error():
     """Closed form: gamma from the markers' lateral strain, E, c1, c2 from eq. 6, 7, 14-17;
     then the whole-record fit. Noise-free, so both are exact but for the closed form's
     settling assumption (its final frames still recover by ~e^-15 of the Voigt strain).
-    Measured: closed form E, c1, c2 -9.2e-5 %, gamma 3e-12 %; fit within 6e-12 %.
-    Tolerance: the issue's 0.1 %."""
+    Measured: closed form E, c1, c2 -9.2e-5 %, gamma 3e-12 %; fit within 6e-12 %
+    (ANALYTIC_TOL)."""
     setup = _block_setup()
     record = analytic_block_record(setup, BLOCK, StageProfile())
     closed = from_final_displacement(record)
@@ -280,14 +283,14 @@ def test_analytic_uniaxial_block_is_identified_within_a_tenth_of_a_percent():
     fit = fit_record(record, closed, forward=setup.forward_model())
     for est in (closed, fit):
         errors = est.relative_errors(BLOCK)
-        assert set(errors) == set(BLOCK) and all(abs(e) < BLOCK_TOL for e in errors.values()), (est.method, errors)
+        assert set(errors) == set(BLOCK) and all(abs(e) < ANALYTIC_TOL for e in errors.values()), (est.method, errors)
 
 
-def test_dynamic_fe_uniaxial_block_is_identified_within_a_tenth_of_a_percent():
+def test_dynamic_fe_uniaxial_block_is_identified_to_a_thousandth_of_a_percent():
     """Noise-free data of the dynamic FE simulator (17 x 17 nodes, inertia, one-sided
     contact) on the uniaxial block; identified by the closed form and by the fit on the
     default forward model (33 x 33). Measured: closed form within 4.8e-4 % (gamma
-    2e-4 %), fit within 6.3e-4 % (gamma 1e-6 %). Tolerance: the issue's 0.1 %."""
+    2e-4 %), fit within 6.3e-4 % (gamma 1e-6 %) (DYNAMIC_TOL)."""
     from rheo_ros.rig.simulation import simulate_record
 
     setup = _block_setup()
@@ -298,4 +301,4 @@ def test_dynamic_fe_uniaxial_block_is_identified_within_a_tenth_of_a_percent():
     fit = fit_record(record, closed, forward=setup.forward_model())
     for est in (closed, fit):
         errors = est.relative_errors(BLOCK)
-        assert set(errors) == set(BLOCK) and all(abs(e) < BLOCK_TOL for e in errors.values()), (est.method, errors)
+        assert set(errors) == set(BLOCK) and all(abs(e) < DYNAMIC_TOL for e in errors.values()), (est.method, errors)

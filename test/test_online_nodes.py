@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from conftest import TRUTH
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -243,8 +244,13 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
             mine = [f.feedback.phase for f in feedback if (f.feedback.estimate.method == "whole_record") == lane]
             assert mine == sorted(mine, key=["pull", "keep", "release"].index)
         final = read_estimate(r.estimate)
-        for k, v in {"E": 3.33e4, "c1": 1.69e5, "gamma": 0.332}.items():
-            assert abs(final["params"][k] - v) < 0.02 * v, (k, final["params"][k])
+        # Every parameter the 4 mm, 6 s push determines within 4 of its std of the truth
+        # (the simulator's own data: self-consistency); c2 only if determined.
+        for k, v in TRUTH.items():
+            if k in final["undetermined"]:
+                assert k == "c2", final["undetermined"]
+                continue
+            assert abs(final["params"][k] - v) < 4 * final["std"][k], (k, final["params"][k], final["std"][k])
         # A second goal, cancelled once the pull has been identified.
         feedback.clear()
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)

@@ -14,6 +14,7 @@ from rheo_ros.app.analyze import analyze, estimate_bag
 from rheo_ros.app.simulate import simulate_to_bag
 from rheo_ros.config.setup import Setup, load_params
 from rheo_ros.identification.estimate import BASE_PARAMETERS
+from rheo_ros.io.bag import read_params
 from rheo_ros.online.estimator import OnlineDiagnosis
 
 REFERENCE = sorted(p.name for p in BAGS.iterdir() if (p / "metadata.yaml").is_file())
@@ -22,8 +23,13 @@ REFERENCE = sorted(p.name for p in BAGS.iterdir() if (p / "metadata.yaml").is_fi
 SAME = 1e-9
 
 
-def final_update(bag: Path, diagnoses: list[OnlineDiagnosis] | None = None):
-    phases, updates, errors = estimate_bag(str(bag), diagnoses=diagnoses)
+def final_update(bag: Path, diagnoses: list[OnlineDiagnosis] | None = None, interim: bool = True):
+    """The node's updates on ``bag`` and its final estimate; ``interim=False``: without the
+    interim release updates (they do not enter the final estimate, and cost a fit each)."""
+    params = read_params(bag)
+    if not interim:
+        params = {**params, "estimator.release_interval": 0.0}
+    phases, updates, errors = estimate_bag(str(bag), params=params, diagnoses=diagnoses)
     assert errors == []
     finals = [u for u in updates if u.final]
     assert len(finals) == 1 and finals[0] is updates[-1]
@@ -43,7 +49,7 @@ def assert_same_estimate(update, model_json) -> None:
 @pytest.mark.parametrize("name", REFERENCE)
 def test_the_node_and_rheo_analyze_give_the_same_final_estimate(name):
     bag = BAGS / name
-    _, _, final = final_update(bag)
+    _, _, final = final_update(bag, interim=False)
     report = analyze(bag, discover_effects=False).to_json()
     base = report["models"][0]
     assert final.method == "whole_record" and base["name"] == "three_element"
@@ -77,9 +83,13 @@ def test_a_release_cut_short_still_ends_with_a_final_estimate_that_says_so(cut_s
     assert release_phase.t_end - release_phase.t_start == pytest.approx(release, abs=0.15)
     assert "cut short" in final.message and "the data stopped" in final.message
     interim = [u for u in updates if u.interim]
-    # release_interval 10 s: one interim at 10 s of a 20 s release (closed form and fit), none in 5 s
-    # (the release closes at its last frame, 20 s: an interim falls due only before the end).
-    assert len(interim) == (2 if release == 20.0 else 0), [(u.method, u.stamp) for u in interim]
+    # release_interval 10 s: an interim (closed form and fit) each time the data reach 10 s
+    # more of the release, whether or not they stop there: at 10 and 20 s of a 20 s
+    # release (the node cannot know the data stop), none in 5 s.
+    interval = read_params(bag)["estimator.release_interval"]
+    due = np.arange(release_phase.t_start + interval, release_phase.t_end + 1e-6, interval)
+    assert [(u.method, u.stamp) for u in interim] == [
+        (m, pytest.approx(t, abs=0.02)) for t in due for m in ("paper_short_time", "whole_record")]
     assert all("interim" in u.message for u in interim if u.method == "whole_record")
     report = analyze(bag, discover_effects=False).to_json()
     assert_same_estimate(final, report["models"][0])

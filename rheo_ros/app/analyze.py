@@ -22,7 +22,8 @@ from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts
-from rheo_ros.io.bag import BagError, bag_samples, read_params
+from rheo_ros.io.bag import bag_samples, read_params
+from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from rheo_ros.config.setup import ParamsError
-from rheo_ros.io.bag import BagError
-from rheo_ros.nodes.common import GraphError
+from rheo_ros.io.errors import BagError
+from rheo_ros.nodes.errors import GraphError
 from rheo_ros.record import RecordError
 
 

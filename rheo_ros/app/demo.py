@@ -76,7 +76,7 @@ def _print_verdict(d: dict, params: dict) -> None:
 def _report(bag: Path, tmp: Path) -> None:
     """``rheo analyze`` on the recorded bag, with its HTML report."""
     from rheo_ros.app.analyze import analyze
-    from rheo_ros.io.bag import BagError
+    from rheo_ros.io.errors import BagError
     from rheo_ros.record import RecordError
     from rheo_ros.reports.html import write_report
 

@@ -51,7 +51,8 @@ import numpy as np
 
 from rheo_ros.app.analyze import analyze
 from rheo_ros.config.setup import ParamsError, Setup, check_params
-from rheo_ros.io.bag import BagError, write_run
+from rheo_ros.io.bag import write_run
+from rheo_ros.io.errors import BagError
 from rheo_ros.record import RecordError
 from rheo_ros.rig.simulator import simulate_run
 

@@ -21,6 +21,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 
 from rheo_ros.config.setup import Setup, params_yaml, parse_params
+from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     STAGE_TOPIC,
@@ -39,11 +40,6 @@ from rheo_ros.io.messages import (
 from rheo_ros.record import Record
 
 PARAMS_KEY = "rheo_ros.params"
-
-
-class BagError(Exception):
-    """A bag cannot be read as the contract's (unreadable or damaged file, not rosbag2,
-    missing topic, malformed message); the message names the file, topic and field."""
 
 
 def typestore() -> Any:

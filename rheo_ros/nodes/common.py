@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import rclpy
@@ -15,12 +16,6 @@ from rclpy.node import Node
 
 from rheo_ros.config.setup import ParamsError, check_params
 from rheo_ros.config.table import PARAMETERS
-
-
-class GraphError(Exception):
-    """The ROS graph is not as a tool needs it (a topic or a subscriber missing after a
-    timeout); the message names the topic."""
-
 
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
@@ -112,3 +107,37 @@ def diagnostic_array(node: Node, level: str, message: str, values: dict[str, Any
     msg = DiagnosticArray(status=[status])
     msg.header.stamp = node.get_clock().now().to_msg()
     return msg
+
+
+class Silence:
+    """Whether the measurement topics went silent for ``stale_after`` s of wall time, as
+    judged from a node's executor, which may itself be held up (a long callback, the
+    process starved of CPU): then messages wait unread in the queues, so a gap in the
+    node's own timer ticks restarts the count instead of reading as silence."""
+
+    def __init__(self, streams: Iterable[str], stale_after: float, tick_period: float) -> None:
+        self.stale_after, self.tick_period = stale_after, tick_period
+        self.arrived: dict[str, float | None] = dict.fromkeys(streams)
+        self.resumed = time.monotonic()
+        self.last_tick: float | None = None
+
+    def heard(self, stream: str) -> None:
+        self.arrived[stream] = time.monotonic()
+
+    def tick(self) -> None:
+        """Call from the node's timer: a tick later than its period by half ``stale_after``
+        or more means the executor was held up."""
+        now = time.monotonic()
+        if self.last_tick is not None and now - self.last_tick > self.tick_period + 0.5 * self.stale_after:
+            self.resumed = now
+        self.last_tick = now
+
+    def silent(self) -> list[str]:
+        """Streams never heard, or silent for more than ``stale_after`` s."""
+        now = time.monotonic()
+        return [s for s, a in self.arrived.items() if a is None or now - max(a, self.resumed) > self.stale_after]
+
+    @property
+    def all_silent(self) -> bool:
+        """Some stream was heard and every one is silent now: the data stopped."""
+        return any(a is not None for a in self.arrived.values()) and len(self.silent()) == len(self.arrived)

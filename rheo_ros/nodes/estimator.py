@@ -53,7 +53,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
@@ -92,7 +92,7 @@ class EstimatorNode(Node):
         self.predicted_force = self.create_publisher(WrenchStamped, "/rheo/prediction/force", 10)
         self.predicted_markers = self.create_publisher(PoseArray, "/rheo/prediction/markers", 10)
         self.encode_markers = MarkerArrayEncoder(self.types)
-        self.arrived = dict.fromkeys(TOPICS, None)        # wall time of the last message per stream
+        self.silence = Silence(TOPICS, self.stale_after, params["estimator.diagnostics_period"])
         self.bad: dict[str, int] = dict.fromkeys(TOPICS, 0)
         self.last_bad = ""
         self.last_error = ""
@@ -114,9 +114,10 @@ class EstimatorNode(Node):
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
         # Fits and diagnoses take seconds: a lane that falls behind keeps FIT_BACKLOG jobs,
         # skipping first a push's earlier fits that its later phase's covers, and counts
-        # what it skips (reported on /diagnostics).
+        # what it skips (reported on /diagnostics); a waiting interim release fit leaves as
+        # soon as a later stretch of its release is queued.
         self.fit_jobs: Backlog[tuple[Job, ClosedForm | None, float] | None] = Backlog(
-            FIT_BACKLOG, supersedes=self._supersedes)
+            FIT_BACKLOG, supersedes=self._supersedes, replaces=self._replaces)
         # Results go back to the executor's thread to be published: rclpy entities are
         # used from one thread only (taking and publishing concurrently crashed rclpy).
         # Log lines of the lanes go the same way (rclpy's logger keeps per-call-site state).
@@ -135,7 +136,7 @@ class EstimatorNode(Node):
 
     def _feed(self, stream: str, msg, decode, add) -> None:
         arrival = time.perf_counter()
-        self.arrived[stream] = time.monotonic()
+        self.silence.heard(stream)
         try:
             t = stamp_ns(msg) * 1e-9
             value = decode(msg)
@@ -153,18 +154,13 @@ class EstimatorNode(Node):
         elif stream == "markers":
             self.publish_markers(t)
 
-    def silent_streams(self) -> list[str]:
-        """Streams with no message for ``estimator.stale_after`` s of wall time."""
-        now = time.monotonic()
-        return [s for s, a in self.arrived.items() if a is None or now - a > self.stale_after]
-
     def dispatch(self, arrival: float) -> None:
         """Hand the phases whose data are all in to the worker. Which samples a job uses
         depends on stamps only; a silent topic stops holding phases back, and when every
         topic has gone silent a release still open closes there (cut short: the robot
         let go and moved on, or the recording stopped)."""
-        silent = self.silent_streams()
-        if len(silent) == len(TOPICS) and any(a is not None for a in self.arrived.values()) and self.core.release_open:
+        silent = self.silence.silent()
+        if self.silence.all_silent and self.core.release_open:
             for e in self.core.finish(f"no message on any topic for {self.stale_after:g} s"):
                 self.get_logger().warning(f"experiment {e.experiment}: release closed at {e.t_end:.3f} s: "
                                           "the data stopped before the specimen settled")
@@ -220,6 +216,12 @@ class EstimatorNode(Node):
         the same push with a closed form to start from (one without starts from the
         earlier phase's fit)."""
         return new is not None and old is not None and new[1] is not None and supersedes(new[0], old[0])
+
+    @staticmethod
+    def _replaces(new: tuple[Job, ClosedForm | None, float] | None,
+                  old: tuple[Job, ClosedForm | None, float] | None) -> bool:
+        """Whether fit job ``new`` makes the waiting interim ``old`` stale."""
+        return new is not None and old is not None and old[0].interim and supersedes(new[0], old[0])
 
     def _failed(self, job: Job, exc: Exception) -> None:
         e = job.event
@@ -370,13 +372,14 @@ class EstimatorNode(Node):
         now = time.monotonic()
         seg = self.core.segmenter
         reasons = []
+        arrived = self.silence.arrived
         for stream, topic in TOPICS.items():
-            if self.arrived[stream] is None:
-                if now - self.started > self.stale_after and any(self.arrived.values()):
+            if arrived[stream] is None:
+                if now - self.started > self.stale_after and any(arrived.values()):
                     reasons.append(f"no message on {topic}")
-            elif now - self.arrived[stream] > self.stale_after and any(
-                    a is not None and now - a < self.stale_after for a in self.arrived.values()):
-                reasons.append(f"{topic} stale: silent for {now - self.arrived[stream]:.1f} s")
+            elif now - arrived[stream] > self.stale_after and any(
+                    a is not None and now - a < self.stale_after for a in arrived.values()):
+                reasons.append(f"{topic} stale: silent for {now - arrived[stream]:.1f} s")
         if self.last_error:
             reasons.append(self.last_error)
         if self.verdict:
@@ -394,6 +397,7 @@ class EstimatorNode(Node):
         if any(self.bad.values()):
             reasons.append(f"{sum(self.bad.values())} bad message(s), last: {self.last_bad}")
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
+                   "interim fits skipped": self.fit_jobs.replaced,
                    **{f"bad {TOPICS[s]}": n for s, n in self.bad.items()},
                    **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},
                    **{f"latency {k} {q} ms": f"{1e3 * np.percentile(v, int(q[1:])):.2f}"
@@ -404,6 +408,7 @@ class EstimatorNode(Node):
         return "OK", f"experiment {seg.experiment}: {seg.state}", figures
 
     def publish_diagnostics(self) -> None:
+        self.silence.tick()
         self.dispatch(time.perf_counter())
         level, message, figures = self.health()
         self.diagnostics.publish(diagnostic_array(self, level, message, figures))

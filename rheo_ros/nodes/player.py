@@ -25,9 +25,10 @@ from rclpy.signals import SignalHandlerOptions
 from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 
-from rheo_ros.io.bag import BagError, typestore
+from rheo_ros.io.bag import typestore
+from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MessageTypes
-from rheo_ros.nodes.common import GraphError
+from rheo_ros.nodes.errors import GraphError
 
 # KEEP_ALL + reliable: the writer holds what a reader has not acknowledged, so a slow
 # subscriber slows the player down instead of losing messages (KEEP_LAST overwrites

@@ -20,7 +20,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from rheo_ros.io.bag import BagWriter
 from rheo_ros.io.messages import MessageTypes
-from rheo_ros.nodes.common import GraphError
+from rheo_ros.nodes.errors import GraphError
 
 
 def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 5.0) -> tuple[dict | None, str]:

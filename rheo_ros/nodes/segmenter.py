@@ -9,8 +9,6 @@ estimator runs, so both find the same phases.
 
 from __future__ import annotations
 
-import time
-
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
@@ -31,7 +29,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 
@@ -51,12 +49,12 @@ class SegmenterNode(Node):
         self.bad = 0
         self.last_bad = ""
         self.stale_after = params["estimator.stale_after"]
-        self.last_message: float | None = None   # wall clock (monotonic) of the last measurement
+        self.silence = Silence(("measurements",), self.stale_after, params["estimator.diagnostics_period"])
         self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
         self.get_logger().info("segmenter ready")
 
     def _feed(self, topic: str, msg, convert) -> None:
-        self.last_message = time.monotonic()
+        self.silence.heard("measurements")
         try:
             events = convert(stamp_ns(msg) * 1e-9, msg)
         except (MessageError, ValueError) as exc:
@@ -86,12 +84,12 @@ class SegmenterNode(Node):
         """Every topic silent for ``estimator.stale_after`` s with a release open: the data
         stopped (the robot let go and moved on); the release ends at its last frame, as
         the estimator ends it."""
-        if (self.last_message is not None and time.monotonic() - self.last_message > self.stale_after
-                and self.core.state == "release"):
+        if self.silence.all_silent and self.core.state == "release":
             for e in self.core.close_release(f"no message on any topic for {self.stale_after:g} s"):
                 self.publish(e)
 
     def publish_diagnostics(self) -> None:
+        self.silence.tick()
         self.close_when_silent()
         c = self.core
         figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad,

@@ -110,7 +110,7 @@ class StageNode(Node):
             self.context.try_shutdown()
 
     action_active = False
-    FIT_TIMEOUT = 60.0   # s of wall time for the final estimate once the profile is done
+    FIT_TIMEOUT = 60.0   # s of wall time without an estimate, once the profile is done
 
     # -- /rheo/identify ----------------------------------------------------------------
 
@@ -136,7 +136,8 @@ class StageNode(Node):
         self.start(profile)
         self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({', '.join(f'{k} {v:g}' for k, v in changes.items())})")
         # The run takes its own length on the stage clock (sim time in fast mode); the
-        # fits after it take wall time: a minute of it once the profile is done.
+        # fits after it take wall time: a minute of it once the profile is done, counted
+        # again from each estimate of this run (a slow machine's fit lane still working).
         deadline = None
         try:
             while True:
@@ -150,6 +151,8 @@ class StageNode(Node):
                     if self.t0 is None or stamp_ns(msg) < self.t0:
                         continue        # an estimate of an earlier run
                     handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
+                    if deadline is not None:
+                        deadline = time.monotonic() + self.FIT_TIMEOUT
                     if msg.final:
                         # Identified: the stage is off the specimen (the release has
                         # settled); the rest of the profile's recording time is not needed.

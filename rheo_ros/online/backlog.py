@@ -21,20 +21,30 @@ class Backlog(Generic[Item]):
     none (``dropped``): a push's release fit covers the data its pull and keep fits would,
     so a lane behind the pushes spends itself on final estimates. A lane keeping up skips
     nothing.
+
+    ``replaces(newer, older)``: a waiting item that a new one makes stale leaves at once,
+    room or not (counted in ``replaced``): an interim release fit once a later stretch of
+    its release waits, whose numbers nobody wants any more.
     """
 
-    def __init__(self, size: int, supersedes: Callable[[Item, Item], bool] | None = None) -> None:
+    def __init__(self, size: int, supersedes: Callable[[Item, Item], bool] | None = None,
+                 replaces: Callable[[Item, Item], bool] | None = None) -> None:
         if size < 1:
             raise ValueError(f"backlog size {size}: at least 1")
         self.size = size
-        self.supersedes = supersedes
+        self.supersedes, self.replaces = supersedes, replaces
         self.dropped = 0
         self.superseded = 0
+        self.replaced = 0
         self._items: deque[Item] = deque()
         self._ready = threading.Condition()
 
     def put(self, item: Item) -> None:
         with self._ready:
+            if self.replaces is not None:
+                kept = deque(old for old in self._items if not self.replaces(item, old))
+                self.replaced += len(self._items) - len(kept)
+                self._items = kept
             if len(self._items) >= self.size:
                 victim = self._superseded(item)
                 if victim is None:

@@ -246,7 +246,11 @@ class PhaseIdentifier:
             RecordError: no start, or the fit failed from every start.
         """
         rec = self._record(job)
-        if closed is not None:
+        if closed is not None and job.interim:
+            # An interim is superseded within release_interval s: one start (the closed
+            # form's best), not the final's screening of every start.
+            starts, note = [closed.starts[0]], ""
+        elif closed is not None:
             starts, note = fit_starts(rec, closed, self.config), ""
         elif previous is not None:
             starts, note = [previous.params], "no closed form; fit started from the previous update"
