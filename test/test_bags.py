@@ -159,20 +159,24 @@ def test_refinement_through_the_sensor_path_recovers_the_material(name):
         assert abs(est.params[k] - v) < 2e-3 * v, k
 
 
-def test_uniaxial_block_bag_is_identified_within_four_std():
+def test_uniaxial_block_bag_is_identified_within_two_std():
     """The uniaxial block (frictionless faces, gamma 0.3) through the sensor path, noisy
     and dead-banded: gamma from the markers' lateral motion, the forces blind to it.
-    Measured: closed form E +1.3 %, gamma -4.1 % (two final seconds of noisy markers);
-    fit within 0.041 % (c1 -3.3 std, the other parameters within 0.7 std)."""
+    The closed form within 3 % (gamma 8 %: two final seconds of noisy markers; measured
+    E +1.3, c1 +1.3, c2 +0.8, gamma -4.1 %); the fit within 2 std and 0.2 % (measured:
+    0.62 std, 0.066 % at most)."""
     from rheo_ros.identification.fit import fit_record
 
     bag = read_bag(BAGS / "uniaxial_block")
     assert bag.params["geometry"] == "uniaxial" and bag.record.mesh.boundary.bottom == "frictionless"
     rec = bag.record
-    est = fit_record(rec, from_final_displacement(rec), forward=Setup(bag.params).forward_model())
+    closed = from_final_displacement(rec)
+    est = fit_record(rec, closed, forward=Setup(bag.params).forward_model())
     truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
     for k, v in truth.items():
-        assert abs(est.params[k] - v) < 4 * est.std[k], (k, est.params[k], est.std[k])
+        assert abs(closed.params[k] / v - 1) < (0.08 if k == "gamma" else 0.03), (k, closed.params[k])
+        assert abs(est.params[k] - v) < 2 * est.std[k], (k, est.params[k], est.std[k])
+        assert abs(est.params[k] - v) < 2e-3 * v, (k, est.params[k])
 
 
 def test_regenerated_bag_holds_under_another_blas_kernel(tmp_path):

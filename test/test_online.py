@@ -147,14 +147,15 @@ def test_estimates_converge_on_the_truth_as_phases_complete(clean_updates):
     # The fits narrow down as data come in: c2's std after keep is below a tenth of after pull.
     assert updates[3].std["c2"] < 0.1 * updates[1].std["c2"]
     assert updates[5].std["c2"] <= updates[3].std["c2"]
-    # The closed form with the keep's marker displacement works on the paper's mesh (the
-    # 5 x 5 marker grid): on data from a converged mesh it is off by that mesh's
-    # discretisation error (measured: 6.9 % at most), which the fits then remove.
-    assert max(abs(e) for e in (100 * (updates[2].params[k] / v - 1) for k, v in TRUTH.items() if k != "gamma")) < 10
-    # N, total force; its noise is ~0.01 N. The closed forms (paper's mesh, ~7 % off)
-    # misfit by 0.15-0.21 N (measured), the fits by 0.006-0.007 N.
-    assert all(u.rmse_force < 0.02 for u in updates if u.method == "whole_record")
-    assert all(u.rmse_force < 0.3 for u in updates if u.method != "whole_record")
+    # The keep's closed form (eq. 6, 7, 10 through the shared forward model): E, c1, c2
+    # within 0.2 % of the truth (measured on the clean bags: 0.06 % at most).
+    assert max(abs(e) for e in (100 * (updates[2].params[k] / v - 1) for k, v in TRUTH.items() if k != "gamma")) < 0.2
+    # N, total force, whose noise here is 0.0072 N (the RMS of a perfect model): the fits
+    # and the pull's and keep's closed forms within 1.7 x that (measured 0.0060-0.0072 N);
+    # the release's closed form (final displacement: 2-4 % off on these bags) misfits by
+    # 0.12 N (measured), held below 0.2 N.
+    assert all(u.rmse_force < 0.012 for u in updates if u.phase != "release" or u.method == "whole_record")
+    assert updates[4].method == "paper_short_time" and updates[4].rmse_force < 0.2
 
 
 def test_results_do_not_depend_on_how_the_streams_interleave(clean_updates):

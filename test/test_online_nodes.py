@@ -82,7 +82,6 @@ def replay(short_bag, tmp_path_factory, ros_env):
     """A bag replayed over DDS into the segmenter and estimator nodes, twice."""
     diagnoses = []
     offline = estimate_bag(str(short_bag / "bag"), diagnoses=diagnoses)
-    n_updates = len(offline[1])
     runs = []
     for k in range(2):
         tmp = tmp_path_factory.mktemp(f"replay{k}")
@@ -100,9 +99,11 @@ def replay(short_bag, tmp_path_factory, ros_env):
                                    "--wait-for-subscribers", "2"], env=g.env, capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
-            # Every update first: a late subscriber that joined before the last one would get two.
-            g.spin_until(lambda: len(estimates) >= n_updates and len(phases) >= 4, 60,
-                         lambda: f"{n_updates} estimates and 4 phases (got {len(estimates)} and {len(phases)})")
+            # Every update first (the final is the last): a late subscriber that joined before
+            # the last one would get two.
+            g.spin_until(lambda: any(e["final"] for e in estimates) and len(phases) >= 4, 60,
+                         lambda: f"the final estimate and 4 phases (got {len(estimates)} estimates, "
+                                 f"{len(phases)} phases)")
             late = []
             late_node = rclpy.create_node("late", context=g.context)
             late_node.create_subscription(Estimate, "/rheo/estimate", late.append,
@@ -123,21 +124,28 @@ def replay(short_bag, tmp_path_factory, ros_env):
 def test_replay_through_dds_gives_the_offline_estimates_every_run(replay):
     """Header stamps only: the same bag gives the offline core's numbers to 1e-9, twice.
     (The node publishes a phase's closed form as soon as it has it, so it may come
-    before the previous phase's fit: the updates are compared per phase and method;
-    each lane keeps its own order.)"""
+    before the previous phase's fit: each lane keeps its own order. A fit lane behind
+    the data skips an interim fit once a later one of its release waits: every other
+    update is published.)"""
     runs, (_, updates, errors, _) = replay
     assert errors == []
+
+    def key(phase, method, stamp):   # interim release updates share phase and method
+        return phase, method, round(stamp, 6)
+
     for run in runs:
         got = run["estimates"]
+        by_key = {key(e["phase"], e["method"], e["stamp"]): e for e in got}
+        published = [u for u in updates if key(u.phase, u.method, u.stamp) in by_key]
+        assert len(by_key) == len(got) == len(published)
+        skipped = [u for u in updates if key(u.phase, u.method, u.stamp) not in by_key]
+        assert all(u.interim and u.method == "whole_record" for u in skipped), skipped
         for lane in (lambda m: m == "whole_record", lambda m: m != "whole_record"):
-            assert ([(e["phase"], e["method"]) for e in got if lane(e["method"])]
-                    == [(u.phase, u.method) for u in updates if lane(u.method)])
+            assert ([key(e["phase"], e["method"], e["stamp"]) for e in got if lane(e["method"])]
+                    == [key(u.phase, u.method, u.stamp) for u in published if lane(u.method)])
         assert got[-1]["final"] and updates[-1].final
-        # Interim release updates share phase and method: the stamp tells them apart.
-        by_key = {(e["phase"], e["method"], round(e["stamp"], 6)): e for e in got}
-        assert len(by_key) == len(got) == len(updates)
-        for u in updates:
-            e = by_key[(u.phase, u.method, round(u.stamp, 6))]
+        for u in published:
+            e = by_key[key(u.phase, u.method, u.stamp)]
             a = np.array(list(e["params"].values()))
             np.testing.assert_array_equal(np.isnan(a), np.isnan(u.values))
             ok = ~np.isnan(a)
@@ -232,6 +240,10 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.spin_until(goal.done, 10, "goal accepted")
         handle = goal.result()
         assert handle.accepted
+        # A goal while a run is in progress is rejected (the stage pushes one specimen at a time).
+        busy = client.send_goal_async(Identify.Goal(depth=0.002))
+        g.spin_until(busy.done, 10, "the busy goal answered")
+        assert not busy.result().accepted
         result = handle.get_result_async()
         g.spin_until(result.done, 120, "the identification result")
         r = result.result().result
@@ -251,6 +263,20 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
                 assert k == "c2", final["undetermined"]
                 continue
             assert abs(final["params"][k] - v) < 4 * final["std"][k], (k, final["params"][k], final["std"][k])
+        # Bad goals are aborted with a line naming the value, and the stage never moves:
+        # a push through the specimen, a NaN speed.
+        height = params["specimen.height"]
+        bad_goals = ((Identify.Goal(depth=height), "stage.depth"),
+                     (Identify.Goal(velocity=float("nan")), "stage.velocity"))
+        for bad, why in bad_goals:
+            depths.clear()
+            goal = client.send_goal_async(bad)
+            g.spin_until(goal.done, 10, "bad goal answered")
+            result = goal.result().get_result_async()
+            g.spin_until(result.done, 10, "the bad goal's result")
+            r = result.result().result
+            assert not r.success and r.message.startswith("bad goal: goal: ") and why in r.message, r.message
+            assert all(d == 0.0 for d in depths), depths
         # A second goal, cancelled once the pull has been identified.
         feedback.clear()
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)

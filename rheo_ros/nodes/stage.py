@@ -9,8 +9,8 @@ estimate arrives on ``/rheo/estimate`` and the final estimate as its result. A c
 
 from __future__ import annotations
 
+import threading
 import time
-from dataclasses import replace
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -22,7 +22,7 @@ from rheo_ros_interfaces.msg import Estimate
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from rheo_ros.config.setup import Setup
+from rheo_ros.config.setup import ParamsError, Setup, check_params
 from rheo_ros.io.messages import ESTIMATE_TOPIC, STAGE_TOPIC, JointStateEncoder, MessageTypes, stamp_ns
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS
@@ -60,6 +60,7 @@ class StageNode(Node):
         else:
             self.create_timer(1.0 / params["rates.stage"], lambda: self.tick(self.get_clock().now().nanoseconds))
         group = ReentrantCallbackGroup()
+        self.goal_lock = threading.Lock()
         self.estimates: list[Estimate] = []
         self.create_subscription(Estimate, ESTIMATE_TOPIC, self.estimates.append, LATCHED_QOS, callback_group=group)
         self.action = ActionServer(self, Identify, IDENTIFY_ACTION, execute_callback=self.identify,
@@ -109,32 +110,41 @@ class StageNode(Node):
             self.get_logger().info("profile done: exiting (stage.exit_when_done)")
             self.context.try_shutdown()
 
-    action_active = False
+    action_active = False          # a goal holds the stage, from its acceptance to its result
     FIT_TIMEOUT = 60.0   # s of wall time without an estimate, once the profile is done
 
     # -- /rheo/identify ----------------------------------------------------------------
 
     def accept_goal(self, goal: Identify.Goal) -> GoalResponse:
-        if self.running or self.action_active:
-            self.get_logger().warning(f"{IDENTIFY_ACTION}: rejected, a run is in progress")
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
+        # The goal holds the stage from its acceptance: a second goal arriving before the
+        # first one's execution starts must not be accepted too (the callback group is
+        # reentrant, hence the lock).
+        with self.goal_lock:
+            if self.running or self.action_active:
+                self.get_logger().warning(f"{IDENTIFY_ACTION}: rejected, a run is in progress")
+                return GoalResponse.REJECT
+            self.action_active = True
+            return GoalResponse.ACCEPT
 
     def identify(self, handle) -> Identify.Result:
         goal = handle.request
-        base = self.setup.profile
-        changes = {k: getattr(goal, k) for k in ("depth", "velocity", "keep_time") if getattr(goal, k) > 0}
+        # Zero or negative keeps the configured value (the action's definition); anything
+        # else, NaN and inf included, is checked as the parameters file's value would be.
+        changes = {f"stage.{k}": getattr(goal, k) for k in ("depth", "velocity", "keep_time")
+                   if not getattr(goal, k) <= 0}
         result = Identify.Result()
         try:
-            profile = replace(base, **changes)
-        except ValueError as exc:
+            profile = Setup(check_params({**self.setup.params, **changes}, "goal")).profile
+        except ParamsError as exc:
             handle.abort()
             result.message = f"bad goal: {exc}"
+            self.get_logger().warning(f"{IDENTIFY_ACTION}: {result.message}")
+            self.action_active = False
             return result
-        self.action_active = True
         seen = len(self.estimates)
         self.start(profile)
-        self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({', '.join(f'{k} {v:g}' for k, v in changes.items())})")
+        asked = ", ".join(f"{k.removeprefix('stage.')} {v:g}" for k, v in changes.items())
+        self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({asked})")
         # The run takes its own length on the stage clock (sim time in fast mode); the
         # fits after it take wall time: a minute of it once the profile is done, counted
         # again from each estimate of this run (a slow machine's fit lane still working).
