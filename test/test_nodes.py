@@ -163,3 +163,36 @@ def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path, ros_env):
     stored = read_params(tmp_path / "bag")
     assert "storing parameters of /stage" in out
     assert stored["stage.depth"] == 0.002 and stored["simulator.seed"] == 4
+
+
+def test_silence_is_the_topics_not_a_held_up_executor(monkeypatch):
+    """``Silence`` (both nodes' "every topic silent for stale_after s"): streams that stop
+    are silent after stale_after s of ticks; a gap in the node's own ticks (its executor
+    held up, messages waiting unread) restarts the count instead."""
+    from rheo_ros.nodes import common
+
+    clock = [100.0]
+    monkeypatch.setattr(common.time, "monotonic", lambda: clock[0])
+    silence = common.Silence(("stage", "force"), stale_after=2.0)
+    assert silence.tick_period == 0.5 and not silence.all_silent      # nothing heard yet
+    assert silence.silent() == ["stage", "force"]                      # never heard: holds nothing back
+
+    def run(seconds: float) -> None:                                  # the tick timer, on time
+        for _ in range(round(seconds / silence.tick_period)):
+            clock[0] += silence.tick_period
+            silence.tick()
+
+    silence.heard("stage"), silence.heard("force")
+    run(1.5)
+    assert silence.silent() == [] and not silence.all_silent
+    run(1.0)                                                            # 2.5 s after the last message
+    assert silence.all_silent
+    silence.heard("stage"), silence.heard("force")
+    clock[0] += 3.0                                                     # held up 3 s: no tick, no message
+    assert silence.silent() == [] and not silence.all_silent
+    run(1.5)
+    assert not silence.all_silent
+    run(1.0)                                                            # 2.5 s of ticks since the hold-up
+    assert silence.all_silent
+    silence.heard("force")
+    assert silence.silent() == ["stage"]

@@ -111,6 +111,15 @@ def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig) -> l
     return starts
 
 
+def interim_start(record: Record, closed: ClosedForm, config: EstimatorConfig) -> dict[str, float]:
+    """The one start of an interim fit (superseded within seconds; no screening): the
+    reported closed form, with the relaxation in view where it leaves a parameter
+    undetermined (a c2 far too slow strands a fit, see ``relaxation_in_view``)."""
+    if undetermined(record, closed.estimate, config):
+        return relaxation_in_view(record, closed.estimate.params)
+    return closed.starts[0]
+
+
 def fit_from_starts(record: Record, forward: QuasiStaticFE, starts: Sequence[dict[str, float]],
                     model: Model | None = None, noise: SensorNoise | None = None) -> Estimate:
     """The whole-record fit: from each start (capped at SCREENING_ITERATIONS), the most
@@ -148,14 +157,12 @@ def fit_from_starts(record: Record, forward: QuasiStaticFE, starts: Sequence[dic
 def relaxation_unseen(record: Record, fit: Estimate, forward: QuasiStaticFE) -> str:
     """Profile of the likelihood along c2: the fit again with c2 held PROFILE_FACTOR times
     larger (same weights); a cost within 4 (2 std) says the data cannot tell. "" when
-    they can. The held fit is capped like a screening fit: on the 9 reference bags its
-    cost equals the converged one's to 7 digits, in 82 % of the time."""
+    they can."""
     stats = fit.statistics
     held = {"c2": fit.params["c2"] * PROFILE_FACTOR}
     try:
         alt = fit_record(record, fit, fixed=held, forward=forward, discretisation=False,
-                         weights=Weights(stats.force_weights, stats.weights["markers"]),
-                         max_iterations=SCREENING_ITERATIONS)
+                         weights=Weights(stats.force_weights, stats.weights["markers"]))
     except (ValueError, np.linalg.LinAlgError):
         return ""
     delta = alt.statistics.cost - stats.cost

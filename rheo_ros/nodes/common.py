@@ -113,20 +113,25 @@ class Silence:
     """Whether the measurement topics went silent for ``stale_after`` s of wall time, as
     judged from a node's executor, which may itself be held up (a long callback, the
     process starved of CPU): then messages wait unread in the queues, so a gap in the
-    node's own timer ticks restarts the count instead of reading as silence."""
+    node's own ticks (a timer every ``tick_period`` s calls ``tick``) restarts the count
+    instead of reading as silence. A hold-up longer than half ``stale_after`` is seen;
+    a shorter one cannot make ``stale_after`` of silence out of a stream that publishes
+    at least every ``stale_after / 2`` s."""
 
-    def __init__(self, streams: Iterable[str], stale_after: float, tick_period: float) -> None:
-        self.stale_after, self.tick_period = stale_after, tick_period
+    def __init__(self, streams: Iterable[str], stale_after: float) -> None:
+        self.stale_after = stale_after
+        self.tick_period = stale_after / 4
         self.arrived: dict[str, float | None] = dict.fromkeys(streams)
         self.resumed = time.monotonic()
         self.last_tick: float | None = None
 
     def heard(self, stream: str) -> None:
+        self.tick()
         self.arrived[stream] = time.monotonic()
 
     def tick(self) -> None:
-        """Call from the node's timer: a tick later than its period by half ``stale_after``
-        or more means the executor was held up."""
+        """Call from a timer every ``tick_period`` s (``heard`` and ``silent`` tick too): a
+        tick later than that by more than half ``stale_after`` means the executor was held up."""
         now = time.monotonic()
         if self.last_tick is not None and now - self.last_tick > self.tick_period + 0.5 * self.stale_after:
             self.resumed = now
@@ -134,6 +139,7 @@ class Silence:
 
     def silent(self) -> list[str]:
         """Streams never heard, or silent for more than ``stale_after`` s."""
+        self.tick()   # called from the executor: a hold-up just ended counts before its timer runs
         now = time.monotonic()
         return [s for s, a in self.arrived.items() if a is None or now - max(a, self.resumed) > self.stale_after]
 

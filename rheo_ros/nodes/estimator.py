@@ -92,7 +92,8 @@ class EstimatorNode(Node):
         self.predicted_force = self.create_publisher(WrenchStamped, "/rheo/prediction/force", 10)
         self.predicted_markers = self.create_publisher(PoseArray, "/rheo/prediction/markers", 10)
         self.encode_markers = MarkerArrayEncoder(self.types)
-        self.silence = Silence(TOPICS, self.stale_after, params["estimator.diagnostics_period"])
+        self.silence = Silence(TOPICS, self.stale_after)
+        self.create_timer(self.silence.tick_period, self.silence.tick)
         self.bad: dict[str, int] = dict.fromkeys(TOPICS, 0)
         self.last_bad = ""
         self.last_error = ""
@@ -408,7 +409,6 @@ class EstimatorNode(Node):
         return "OK", f"experiment {seg.experiment}: {seg.state}", figures
 
     def publish_diagnostics(self) -> None:
-        self.silence.tick()
         self.dispatch(time.perf_counter())
         level, message, figures = self.health()
         self.diagnostics.publish(diagnostic_array(self, level, message, figures))

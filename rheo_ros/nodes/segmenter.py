@@ -49,7 +49,8 @@ class SegmenterNode(Node):
         self.bad = 0
         self.last_bad = ""
         self.stale_after = params["estimator.stale_after"]
-        self.silence = Silence(("measurements",), self.stale_after, params["estimator.diagnostics_period"])
+        self.silence = Silence(("measurements",), self.stale_after)
+        self.create_timer(self.silence.tick_period, self.silence.tick)
         self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
         self.get_logger().info("segmenter ready")
 
@@ -89,7 +90,6 @@ class SegmenterNode(Node):
                 self.publish(e)
 
     def publish_diagnostics(self) -> None:
-        self.silence.tick()
         self.close_when_silent()
         c = self.core
         figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad,

@@ -91,20 +91,21 @@ class StageNode(Node):
         if now == 0:
             return  # simulated time has not started
         self.now_ns = now
-        if self.source is None:
+        source = self.source   # once: a goal's thread may end the run between two reads
+        if source is None:
             self.publisher.publish(self.encode(now, 0.0, 0.0))   # idle: at rest, off the specimen
             return
         if self.t0 is None:
             if self.publisher.get_subscription_count() < self.wait_for:
                 return
             self.t0 = now
-        sample = self.source.sample((now - self.t0) * 1e-9)
+        sample = source.sample((now - self.t0) * 1e-9)
         if sample.phase != self.phase:
             self.phase = sample.phase
             self.get_logger().info(f"phase {sample.phase}: depth {sample.depth * 1e3:.3f} mm, "
                                    f"velocity {sample.velocity * 1e3:.3f} mm/s")
             if sample.phase == "done":
-                self.source.close()
+                source.close()
         self.publisher.publish(self.encode(now, sample.depth, sample.velocity))
         if self.phase == "done" and self.exit_when_done and not self.action_active:
             self.get_logger().info("profile done: exiting (stage.exit_when_done)")
@@ -127,6 +128,12 @@ class StageNode(Node):
             return GoalResponse.ACCEPT
 
     def identify(self, handle) -> Identify.Result:
+        try:
+            return self._run_goal(handle)
+        finally:
+            self.action_active = False   # whatever ended the goal (a driver's exception too)
+
+    def _run_goal(self, handle) -> Identify.Result:
         goal = handle.request
         # Zero or negative keeps the configured value (the action's definition); anything
         # else, NaN and inf included, is checked as the parameters file's value would be.
@@ -139,7 +146,6 @@ class StageNode(Node):
             handle.abort()
             result.message = f"bad goal: {exc}"
             self.get_logger().warning(f"{IDENTIFY_ACTION}: {result.message}")
-            self.action_active = False
             return result
         seen = len(self.estimates)
         self.start(profile)
@@ -149,36 +155,40 @@ class StageNode(Node):
         # fits after it take wall time: a minute of it once the profile is done, counted
         # again from each estimate of this run (a slow machine's fit lane still working).
         deadline = None
-        try:
-            while True:
-                time.sleep(0.02)
-                if self.phase == "done" and deadline is None:
+        while True:
+            time.sleep(0.02)
+            if self.phase == "done" and deadline is None:
+                deadline = time.monotonic() + self.FIT_TIMEOUT
+            if handle.is_cancel_requested:
+                return self._cancel(handle, result)
+            for msg in self.estimates[seen:]:
+                seen += 1
+                if self.t0 is None or stamp_ns(msg) < self.t0:
+                    continue        # an estimate of an earlier run
+                handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
+                if deadline is not None:
                     deadline = time.monotonic() + self.FIT_TIMEOUT
-                if handle.is_cancel_requested:
-                    return self._cancel(handle, result)
-                for msg in self.estimates[seen:]:
-                    seen += 1
-                    if self.t0 is None or stamp_ns(msg) < self.t0:
-                        continue        # an estimate of an earlier run
-                    handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
-                    if deadline is not None:
-                        deadline = time.monotonic() + self.FIT_TIMEOUT
-                    if msg.final:
-                        # Identified: the stage is off the specimen (the release has
-                        # settled); the rest of the profile's recording time is not needed.
-                        self.source.close()
-                        self.source, self.phase = None, "done"
-                        handle.succeed()
-                        return Identify.Result(success=True, message="identified", estimate=msg)
-                if deadline is not None and time.monotonic() > deadline:
-                    handle.abort()
-                    result.message = "no final estimate on /rheo/estimate in time (is the estimator running?)"
-                    return result
-        finally:
-            self.action_active = False
+                if msg.final:
+                    # Identified: the stage is off the specimen (the release has
+                    # settled); the rest of the profile's recording time is not needed.
+                    source, self.source, self.phase = self.source, None, "done"
+                    source.close()
+                    handle.succeed()
+                    return Identify.Result(success=True, message="identified", estimate=msg)
+            if deadline is not None and time.monotonic() > deadline:
+                handle.abort()
+                result.message = "no final estimate on /rheo/estimate in time (is the estimator running?)"
+                return result
 
     def _cancel(self, handle, result: Identify.Result) -> Identify.Result:
-        t = (self.now_ns - self.t0) * 1e-9 if self.t0 is not None else 0.0
+        if self.t0 is None:
+            # Not moved yet (waiting for subscribers): nothing to retract.
+            source, self.source, self.phase = self.source, None, "done"
+            source.close()
+            handle.canceled()
+            result.message = "cancelled before the stage moved"
+            return result
+        t = (self.now_ns - self.t0) * 1e-9
         self.source.abort(t)
         self.get_logger().warning(f"{IDENTIFY_ACTION}: cancelled at {t:.2f} s: retracting")
         while self.phase != "done" and self.context.ok():

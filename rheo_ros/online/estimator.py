@@ -48,6 +48,7 @@ from rheo_ros.identification.pipeline import (
     fit_from_starts,
     fit_starts,
     force_error,
+    interim_start,
     relaxation_unseen,
     undetermined,
 )
@@ -247,9 +248,8 @@ class PhaseIdentifier:
         """
         rec = self._record(job)
         if closed is not None and job.interim:
-            # An interim is superseded within release_interval s: one start (the closed
-            # form's best), not the final's screening of every start.
-            starts, note = [closed.starts[0]], ""
+            # Superseded within release_interval s: one start, not the final's screening.
+            starts, note = [interim_start(rec, closed, self.config)], ""
         elif closed is not None:
             starts, note = fit_starts(rec, closed, self.config), ""
         elif previous is not None:
