@@ -185,37 +185,28 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rheo", description="Identify rheological parameters (E, c1, c2, Poisson ratio).")
     sub = parser.add_subparsers(dest="command", required=True)
     bench = sub.add_parser("bench", help="benchmarks").add_subparsers(dest="bench", required=True)
-    p = bench.add_parser("paper", help="reproduce the paper's Tables II-IV with the project's FE model")
-    p.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    p.set_defaults(func=_bench)
-    n = bench.add_parser("noise", help="bias, std and Cramer-Rao bound under measurement noise")
-    n.add_argument("--replicates", type=int, default=200, help="noisy replicates (default 200)")
-    n.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    n.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    n.set_defaults(func=_bench)
-    o = bench.add_parser("online", help="estimator node over DDS: latency per phase, idle CPU, memory over many "
-                                        "experiments")
-    o.add_argument("--experiments", type=int, default=100, help="experiments replayed (default 100)")
-    o.add_argument("--rate", type=float, default=10.0, help="replay speed, x real time (default 10)")
-    o.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    o.set_defaults(func=_bench)
-    c = bench.add_parser("calibration", help="reported std against the error over noise seeds through the sensor path")
-    c.add_argument("--replicates", type=int, default=100, help="noise seeds per case (default 100)")
-    c.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    c.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    c.set_defaults(func=_bench)
-    dg = bench.add_parser("diagnosis", help="confusion table of the model-discovery loop over generated bags with "
-                                            "random parameters, noise and hidden effects (~40 min for 100)")
-    dg.add_argument("--replicates", type=int, default=100, help="bags generated (default 100)")
-    dg.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    dg.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    dg.set_defaults(func=_bench)
-    m = bench.add_parser("mesh", help="identification error against the FE mesh's refinement (data from a finer mesh)")
-    m.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    m.set_defaults(func=_bench)
-    b = bench.add_parser("simulator", help="simulator speed as a multiple of real time (bag written directly)")
-    b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-    b.set_defaults(func=_bench)
+
+    def bench_command(name: str, text: str, **options: tuple[type, float | int, str]) -> None:
+        """``rheo bench NAME``: its options (type, default, help), ``--json``, run by ``_bench``."""
+        b = bench.add_parser(name, help=text)
+        for option, (kind, default, what) in options.items():
+            b.add_argument(f"--{option}", type=kind, default=default, help=f"{what} (default {default:g})")
+        b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+        b.set_defaults(func=_bench)
+
+    seed = (int, 0, "random seed")
+    bench_command("paper", "reproduce the paper's Tables II-IV with the project's FE model")
+    bench_command("noise", "bias, std and Cramer-Rao bound under measurement noise",
+                  replicates=(int, 200, "noisy replicates"), seed=seed)
+    bench_command("online", "estimator node over DDS: latency per phase, idle CPU, memory over many experiments",
+                  experiments=(int, 100, "experiments replayed"), rate=(float, 10.0, "replay speed, x real time"))
+    bench_command("calibration", "reported std against the error over noise seeds through the sensor path",
+                  replicates=(int, 100, "noise seeds per case"), seed=(int, 0, "first seed"))
+    bench_command("diagnosis", "confusion table of the model-discovery loop over generated bags with random "
+                               "parameters, noise and hidden effects (~40 min for 100)",
+                  replicates=(int, 100, "bags generated"), seed=seed)
+    bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
+    bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
     s.add_argument("--effect", action="append", metavar="ID",
                    help="hidden effect to add (repeatable): relaxation_branch, adhesion, strain_stiffening, "
