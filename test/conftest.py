@@ -11,9 +11,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
+import numpy as np
 import pytest
 
 from rheo_ros.bench.cases import table_i_case, table_iv_case
+from rheo_ros.config.setup import Setup
+from rheo_ros.experiment import StageProfile, sample_times
+from rheo_ros.models.elements import three_element
+from rheo_ros.models.response import respond, stage_program
+from rheo_ros.record import Record
 
 BAGS = Path(__file__).resolve().parents[1] / "bags"
 # The simulated clay of the reference bags (the paper's Table IV).
@@ -63,3 +69,22 @@ def short_case():
 @pytest.fixture(scope="session")
 def plane_case():
     return table_iv_case()
+
+
+def analytic_block_record(setup: Setup, truth: dict[str, float], profile: StageProfile) -> Record:
+    """The frictionless block in uniform uniaxial stress from the three-element model's
+    exact response alone (no FE): the stress is ``Q[s] / H`` with ``s`` the top's sinking,
+    each tactile segment reads it times its area; every marker moves by the uniform
+    strain field ``u_y = -s y / H``, ``u_x = gamma s (x - W/2) / H`` (lateral strain
+    -gamma times the axial, the centre of the bottom held)."""
+    mesh, p = setup.mesh, setup.params
+    stage_t, force_t, marker_t = (sample_times(profile.t_end, p[f"rates.{k}"]) for k in ("stage", "tactile", "markers"))
+    element = three_element(truth["E"], truth["c1"], truth["c2"])
+    stress = respond(element, stage_program(profile), force_t).stress / mesh.height        # Pa
+    segment_area = np.diff(setup.tactile.segment_edges) * mesh.thickness              # m^2
+    axial = respond(element, stage_program(profile), marker_t).strain / mesh.height       # compressive strain
+    x, y = mesh.nodes[:, 0] - mesh.width / 2, mesh.nodes[:, 1]
+    displacement = np.stack([truth["gamma"] * axial[:, None] * x, -axial[:, None] * y], axis=2)
+    return Record(mesh=mesh, stage_t=stage_t, stage_depth=profile.depth_at(stage_t), force_t=force_t,
+                  force=np.outer(stress, segment_area), marker_t=marker_t, markers=mesh.nodes[None] + displacement,
+                  source="analytic uniaxial block")

@@ -4,20 +4,21 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import analytic_block_record
 
 from rheo_ros.bench.cases import TABLE_IV
 from rheo_ros.bench.mesh import fine_mesh_record
+from rheo_ros.bench.noise import Noise
 from rheo_ros.config.setup import Setup, check_params, load_params
-from rheo_ros.experiment import StageProfile, sample_times
+from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.closed_form import deformation_error, fit_force_curves, from_final_displacement
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.fit import WholeRecordProblem, cramer_rao_std, fit_record
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.models.response import respond, stage_program
-from rheo_ros.record import Record, RecordError
-from rheo_ros.rig.simulation import Noise
+from rheo_ros.record import RecordError
+from rheo_ros.rig.simulator import simulate_clean
 
 PAPER_TOL = 0.01    # % per parameter, noise-free 1D (the paper: 0.0125 % to 0.335 %)
 PLANE_TOL = 0.1     # % per parameter, noise-free 2D
@@ -219,13 +220,9 @@ def test_slow_release_is_identified_by_the_fit_that_follows_the_contact(speed):
     same mesh) follows the contact: measured |error| <= 0.004 % at every speed; the
     issue's tolerance 0.1 %. The closed form warns where it cannot follow (measured:
     -7 % at 0.5 mm/s)."""
-    from rheo_ros.rig.simulation import simulate_record
-
-    setup = Setup(load_params(None))
-    edges = setup.tactile.segment_edges
-    model = Model(three_element(TABLE_IV["E"], TABLE_IV["c1"], TABLE_IV["c2"]))
-    profile = StageProfile(keep_time=48.0, release_time=60.0, retract_speed=speed)
-    record = simulate_record(setup.mesh, model, TABLE_IV["gamma"], profile, refine=4, segment_edges=edges)
+    setup = Setup(check_params({**{f"material.{k}": v for k, v in TABLE_IV.items()}, "simulator.refine": 4,
+                                "stage.keep_time": 48.0, "stage.release_time": 60.0, "stage.retract_speed": speed}))
+    record = simulate_clean(setup).record(setup, f"retract at {speed} m/s")
     fit = _fit_with(setup, 4, record).relative_errors(TABLE_IV)
     assert all(abs(e) < 0.1 for e in fit.values()), fit
     closed = from_final_displacement(record)
@@ -248,27 +245,10 @@ DYNAMIC_TOL = {"closed_form": 5.0e-3, "fit": 1.5e-3}
 
 def _block_setup() -> Setup:
     """The contract's default specimen and sensors as the uniaxial block; the boundary
-    conditions are left to the geometry (frictionless)."""
-    return Setup(check_params({"geometry": "uniaxial", "material.gamma": BLOCK["gamma"]}))
-
-
-def analytic_block_record(setup: Setup, truth: dict[str, float], profile: StageProfile) -> Record:
-    """The frictionless block in uniform uniaxial stress from the three-element model's
-    exact response alone (no FE): the stress is ``Q[s] / H`` with ``s`` the top's sinking,
-    each tactile segment reads it times its area; every marker moves by the uniform
-    strain field ``u_y = -s y / H``, ``u_x = gamma s (x - W/2) / H`` (lateral strain
-    -gamma times the axial, the centre of the bottom held)."""
-    mesh, p = setup.mesh, setup.params
-    stage_t, force_t, marker_t = (sample_times(profile.t_end, p[f"rates.{k}"]) for k in ("stage", "tactile", "markers"))
-    element = three_element(truth["E"], truth["c1"], truth["c2"])
-    stress = respond(element, stage_program(profile), force_t).stress / mesh.height        # Pa
-    segment_area = np.diff(setup.tactile.segment_edges) * mesh.thickness              # m^2
-    axial = respond(element, stage_program(profile), marker_t).strain / mesh.height       # compressive strain
-    x, y = mesh.nodes[:, 0] - mesh.width / 2, mesh.nodes[:, 1]
-    displacement = np.stack([truth["gamma"] * axial[:, None] * x, -axial[:, None] * y], axis=2)
-    return Record(mesh=mesh, stage_t=stage_t, stage_depth=profile.depth_at(stage_t), force_t=force_t,
-                  force=np.outer(stress, segment_area), marker_t=marker_t, markers=mesh.nodes[None] + displacement,
-                  source="analytic uniaxial block")
+    conditions are left to the geometry (frictionless). Simulated on a 17 x 17 mesh,
+    the stage leaving at once on release."""
+    return Setup(check_params({"geometry": "uniaxial", **{f"material.{k}": v for k, v in BLOCK.items()},
+                               "simulator.refine": 4, "stage.retract_speed": float("inf")}))
 
 
 def test_analytic_uniaxial_block_is_identified_to_its_settling_error():
@@ -292,12 +272,8 @@ def test_dynamic_fe_uniaxial_block_is_identified_to_thousandths_of_a_percent():
     contact) on the uniaxial block; identified by the closed form and by the fit on the
     default forward model (33 x 33). Measured: closed form within 2.6e-3 % (c2; E and c1
     1.4e-3 %, gamma 2e-4 %), fit within 7.7e-4 % (c2; gamma 1.6e-5 %) (DYNAMIC_TOL)."""
-    from rheo_ros.rig.simulation import simulate_record
-
     setup = _block_setup()
-    model = Model(three_element(BLOCK["E"], BLOCK["c1"], BLOCK["c2"]))
-    record = simulate_record(setup.mesh, model, BLOCK["gamma"], StageProfile(), refine=4,
-                             segment_edges=setup.tactile.segment_edges)
+    record = simulate_clean(setup).record(setup, "dynamic FE uniaxial block")
     closed = from_final_displacement(record)
     fit = fit_record(record, closed, forward=setup.forward_model())
     for est, tol in ((closed, DYNAMIC_TOL["closed_form"]), (fit, DYNAMIC_TOL["fit"])):

@@ -57,6 +57,8 @@ def test_segmenter_matches_the_offline_segmentation_within_one_sample(name):
     assert events["release"].t_start == events["keep"].t_end
     # Release ends when the mesh has settled: after the stage left, before the bag ends.
     assert offline.t_keep_end < events["release"].t_end < rec.marker_t[-1]
+    release = events["release"]
+    assert release.samples == np.count_nonzero((rec.marker_t > release.t_start) & (rec.marker_t <= release.t_end))
     assert abs(events["contact"].t_start - offline.t_pull_start) < 0.1
 
 
@@ -228,7 +230,11 @@ def test_a_keep_far_shorter_than_the_relaxation_time_leaves_c2_undetermined():
 def test_a_shallow_short_push_gets_a_closed_form_from_the_nodes_above_the_noise_and_a_calibrated_fit():
     """A 2 mm push held 2 s: at some nodes the final displacement is within the marker
     noise and eq. 14-17 get the wrong sign there; the closed form leaves them out and says
-    so, and the release's fit of all the data reports values within 3 std of the truth."""
+    so, and the release's fit of all the data reports values within 3 std of the truth.
+    Here the permanent set is at the markers' noise: the release's fit finds c2 in a flat
+    valley out to infinity (E and c2 undetermined), and c1's std holds the valley's move
+    (``relaxation_unseen``): measured c1 -1.16 std, gamma -0.93 (without that term c1
+    was -3.8 std: a std conditional on an infinite c2)."""
     setup, run, force = simulated({"stage.depth": 0.002, "stage.velocity": 0.002, "stage.keep_time": 2.0,
                                    "stage.release_time": 30.0})
     msgs = messages(run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers)
@@ -241,7 +247,7 @@ def test_a_shallow_short_push_gets_a_closed_form_from_the_nodes_above_the_noise_
     determined = [n for n in last.names if n not in last.undetermined]
     assert {"c1", "gamma"} <= set(determined)
     for n in determined:
-        assert abs(last.params[n] - TRUTH[n]) < 3 * last.std[n], n   # measured within 2.0 std
+        assert abs(last.params[n] - TRUTH[n]) < 3 * last.std[n], n
     assert abs(last.params["c1"] / TRUTH["c1"] - 1) < 0.01
 
 

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
+from rheo_ros.config.setup import Setup, check_params
 from rheo_ros.experiment import StageProfile
-from rheo_ros.fe.mesh import Mesh
-from rheo_ros.models.effects import Model
-from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
-from rheo_ros.rig.simulation import simulate_record
+from rheo_ros.rig.simulator import simulate_clean
 
 # Table I: E, c1, c2 and d in the paper's units; a unit block (1 x 1 x 1) makes the
 # total force equal the stress and the top's sinking the strain, as in the paper's
@@ -35,6 +34,13 @@ class Case:
     density: float
 
 
+def simulated(params: dict[str, Any], source: str) -> tuple[Setup, Record]:
+    """The package's simulator on the dynamic FE model at the marker grid (refine 1, as
+    the paper), noise-free: the setup and its record."""
+    setup = Setup(check_params({"simulator.refine": 1, **params}, source))
+    return setup, simulate_clean(setup).record(setup, source)
+
+
 def table_i_case(name: str, phase_time: float) -> Case:
     """Table I long-time (200 s) or short-time (20 s) case on the uniaxial block (the
     paper's homogeneous 1D model), 5 x 5 markers, gamma 0.
@@ -42,20 +48,21 @@ def table_i_case(name: str, phase_time: float) -> Case:
     The block's density is 1e-3 kg/m^3: the paper gives no masses, and the
     identification assumes a quasi-static block.
     """
-    mesh = Mesh.build("uniaxial", 1.0, 1.0, 1.0, rows=5, cols=5)
-    profile = StageProfile.from_times(TABLE_I_DEPTH, phase_time, phase_time, start_delay=1.0, release_time=100.0)
-    model = Model(three_element(**TABLE_I))
-    record = simulate_record(mesh, model, TABLE_I_GAMMA, profile, density=1e-3, source=f"table_I_{name}")
+    setup, record = simulated({
+        "geometry": "uniaxial", "specimen.width": 1.0, "specimen.height": 1.0, "specimen.thickness": 1.0,
+        **{f"material.{k}": v for k, v in TABLE_I.items()}, "material.gamma": TABLE_I_GAMMA, "material.density": 1e-3,
+        "stage.depth": TABLE_I_DEPTH, "stage.velocity": TABLE_I_DEPTH / phase_time, "stage.keep_time": phase_time,
+        "stage.start_delay": 1.0, "stage.release_time": 100.0, "stage.retract_speed": float("inf"),
+    }, f"table_I_{name}")
     paper, method = (TABLE_II, "long_time") if name == "long" else (TABLE_III, "short_time")
-    return Case(f"Table I {name}-time (1D)", dict(TABLE_I), paper, method, record, profile, 1e-3)
+    return Case(f"Table I {name}-time (1D)", dict(TABLE_I), paper, method, record, setup.profile, 1e-3)
 
 
 def table_iv_case() -> Case:
     """The contract's default experiment (80 x 80 x 12.5 mm clay, 5 x 5 markers, push 10 mm
     at 0.5 mm/s, keep 48 s) with the Table IV parameters, on the 2D FE mesh."""
-    mesh = Mesh.build("plane_fe", 0.080, 0.080, 0.0125, rows=5, cols=5)
-    profile = StageProfile()
-    model = Model(three_element(TABLE_IV["E"], TABLE_IV["c1"], TABLE_IV["c2"]))
-    record = simulate_record(mesh, model, TABLE_IV["gamma"], profile, source="table_IV_2d")
+    setup, record = simulated({**{f"material.{k}": v for k, v in TABLE_IV.items()},
+                               "stage.retract_speed": float("inf")}, "table_IV_2d")
     paper = {k: (v, None) for k, v in TABLE_IV.items()}  # identified on real clay: no error
-    return Case("Table IV parameters (2D)", dict(TABLE_IV), paper, "short_time", record, profile, 1.5e3)
+    return Case("Table IV parameters (2D)", dict(TABLE_IV), paper, "short_time", record, setup.profile,
+                setup.params["material.density"])

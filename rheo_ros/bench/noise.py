@@ -8,6 +8,7 @@ whole-record refinement started from it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -17,8 +18,29 @@ from rheo_ros.identification.closed_form import from_final_displacement
 from rheo_ros.identification.fit import WholeRecordProblem, cramer_rao_std, fit_record
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.record import RecordError
-from rheo_ros.rig.simulation import Noise
+from rheo_ros.record import Record, RecordError
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Additive Gaussian noise of known std on a noise-free record: ``force`` as a
+    fraction of each node's peak force, ``markers`` in m per coordinate.
+
+    Not a sensor (the simulator's sensors are ``rheo_ros.sensors``, with their dead band,
+    clipping and quantisation, calibrated by ``rheo bench calibration``): the
+    Cramer-Rao bound this bench compares with is defined for additive Gaussian noise of
+    known std, so the replicates get exactly that."""
+
+    force: float = 0.01
+    markers: float = 20e-6
+
+    def force_std(self, record: Record) -> np.ndarray:
+        return self.force * np.abs(record.force).max(axis=0)
+
+    def apply(self, record: Record, rng: np.random.Generator) -> Record:
+        force = record.force + rng.standard_normal(record.force.shape) * self.force_std(record)
+        markers = record.markers + rng.standard_normal(record.markers.shape) * self.markers
+        return replace(record, force=force, markers=markers)
 
 
 def run(replicates: int = 200, seed: int = 0, noise: Noise | None = None) -> dict[str, Any]:

@@ -42,6 +42,8 @@ SCREENING_ITERATIONS = 25
 # A slower relaxation (c2 this many times larger) that fits the data as well means the
 # data set no upper bound on c2: its std from the local curvature would mislead.
 PROFILE_FACTOR = 30.0
+# Held fits that bisect the flat valley along c2 down to where the cost rises by 4.
+PROFILE_STEPS = 8
 
 
 @dataclass(frozen=True)
@@ -154,22 +156,53 @@ def fit_from_starts(record: Record, forward: QuasiStaticFE, starts: Sequence[dic
     return fit_record(record, best, model=model, forward=forward, weights=weights, discretisation=True)
 
 
-def relaxation_unseen(record: Record, fit: Estimate, forward: QuasiStaticFE) -> str:
+def relaxation_unseen(record: Record, fit: Estimate, forward: QuasiStaticFE,
+                      starts: Sequence[dict[str, float]] = ()) -> tuple[str, Estimate]:
     """Profile of the likelihood along c2: the fit again with c2 held PROFILE_FACTOR times
-    larger (same weights); a cost within 4 (2 std) says the data cannot tell. "" when
-    they can."""
+    larger (same weights); a cost within 4 (2 std) says the data cannot tell: the reason
+    ("" when they can) and the fit to report.
+
+    Where they cannot, the fit's c2 is one point of a flat valley (often at the search's
+    edge, an infinite c2) and the other parameters' std, taken there, is conditional on
+    it. So the valley's other end is found: the smallest c2 that still fits within a cost
+    of 4, bisected (PROFILE_STEPS held fits, in log c2) down to the smallest c2 a start
+    proposed; each other parameter's move to that end is a two-std move, and half of it
+    joins its std: the data know it only that well."""
     stats = fit.statistics
-    held = {"c2": fit.params["c2"] * PROFILE_FACTOR}
-    try:
-        alt = fit_record(record, fit, fixed=held, forward=forward, discretisation=False,
-                         weights=Weights(stats.force_weights, stats.weights["markers"]))
-    except (ValueError, np.linalg.LinAlgError):
-        return ""
-    delta = alt.statistics.cost - stats.cost
-    if delta < 4.0:
-        return (f"the data fit as well with c2 {PROFILE_FACTOR:g} x larger (cost +{delta:.2g}): "
-                "the relaxation is not seen")
-    return ""
+    weights = Weights(stats.force_weights, stats.weights["markers"])
+
+    def held_at(c2: float) -> Estimate | None:
+        try:
+            return fit_record(record, fit, fixed={"c2": c2}, forward=forward, discretisation=False, weights=weights)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+
+    def within(est: Estimate | None) -> bool:
+        return est is not None and est.statistics.cost - stats.cost < 4.0
+
+    alt = held_at(fit.params["c2"] * PROFILE_FACTOR)
+    if not within(alt):
+        return "", fit
+    reason = (f"the data fit as well with c2 {PROFILE_FACTOR:g} x larger (cost +{alt.statistics.cost - stats.cost:.2g}): "
+              "the relaxation is not seen")
+    proposed = [float(s["c2"]) for s in starts if 0 < s.get("c2", np.nan) < fit.params["c2"]]
+    if not proposed or fit.covariance is None:
+        return reason, fit
+    inside, outside = np.log(fit.params["c2"]), np.log(min(proposed))
+    end = fit
+    low = held_at(float(np.exp(outside)))
+    if within(low):
+        end = low
+    else:
+        for _ in range(PROFILE_STEPS):
+            middle = 0.5 * (inside + outside)
+            trial = held_at(float(np.exp(middle)))
+            if within(trial):
+                inside, end = middle, trial
+            else:
+                outside = middle
+    half = np.array([0.0 if n == "c2" else 0.5 * (end.params[n] - fit.params[n]) for n in fit.params])
+    return reason, replace(fit, covariance=fit.covariance + np.diag(half**2))
 
 
 def undetermined(record: Record, est: Estimate, config: EstimatorConfig, unseen: str = "") -> dict[str, str]:

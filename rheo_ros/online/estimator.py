@@ -260,7 +260,7 @@ class PhaseIdentifier:
         fit = fit_from_starts(rec, self.forward, starts, noise=sensor_noise(rec))
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
-        unseen = relaxation_unseen(rec, fit, self.forward)
+        unseen, fit = relaxation_unseen(rec, fit, self.forward, starts)
         stats = fit.statistics
         p = fit.params
         predicted = self.forward.predict(Model(three_element(p["E"], p["c1"], p["c2"])), p["gamma"], rec.profile(),

@@ -110,6 +110,7 @@ class PhaseSegmenter:
         self._lo: np.ndarray | None = None            # range of each marker coordinate this push
         self._hi: np.ndarray | None = None
         self._pending_release: float | None = None   # release start not yet judged on markers
+        self._release_frames = 0                      # marker frames after the release's start
         self._judged = -np.inf
         self.release_reason = ""
 
@@ -245,6 +246,8 @@ class PhaseSegmenter:
                                release_time=0.0, retract_speed=retract_speed)
         self._t_release = t_leave
         self._pending_release = t_leave
+        # Frames are trimmed once judged: count them here (those already in, then each new one).
+        self._release_frames = sum(1 for tf, _ in self._frames if tf > t_leave)
         self.state, self._run = "release", []
         self._release_min = float(rd.min())
         self._release_rest: deque[float] = deque(maxlen=self.REST)
@@ -324,6 +327,8 @@ class PhaseSegmenter:
         if not (self._in_order("markers", t) and np.all(np.isfinite(positions))):
             return []
         self._frames.append((t, positions))
+        if self._pending_release is not None and t > self._pending_release:
+            self._release_frames += 1
         if self._lo is None or self._lo.shape != positions.shape:
             self._lo, self._hi = positions.copy(), positions.copy()
         np.minimum(self._lo, positions, out=self._lo)
@@ -388,7 +393,7 @@ class PhaseSegmenter:
 
     def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
         t_release = self._t_release
-        n = sum(1 for tf, _ in self._frames if t_release < tf <= t_end)
+        n = self._release_frames - sum(1 for tf, _ in self._frames if tf > t_end)
         slope = self._retraction.slope()
         self.profile = replace(self.profile, release_time=max(t_end - t_release, 0.0),
                                retract_speed=-slope if slope < 0 else self.profile.retract_speed)

@@ -1,10 +1,27 @@
 """``write_report``: what ``analyze`` found, as one self-contained HTML page.
 
-The page needs no server and fetches nothing: the figures are matplotlib SVG inlined
-in the HTML, the style sheet and the one script are inline too. It states the verdict
-first, then the phases, the diagnosis step by step, how the force error falls from
-model to model, each model's force against the measurement with its residual, the
+The page needs no server, fetches nothing and runs no script: the figures are
+matplotlib SVG inlined in the HTML, the style sheet is inline too. It states the
+verdict first, then the phases, the diagnosis step by step, how the force error falls
+from model to model, each model's force against the measurement with its residual, the
 marker mesh measured against the final model, and every parameter with its std.
+
+What it shows can be read back by a machine, as a browser has it, without changing
+what a person sees:
+
+- the verdict is ``<p id="verdict">``, each diagnosis step an ``<li>`` of ``ol.steps``;
+- each parameter table is ``<table class="parameters" id="parameters-step-<k>">`` (one
+  per model, ``data-model`` its name) or ``id="parameters-closed-form"``; a parameter's
+  row is ``<tr data-param="<name>">`` with ``<td class="value">`` and ``<td class="std">``,
+  each with ``data-value``, the float's ``repr`` (empty for no std, ``inf``/``nan``
+  for an undetermined one); the BIC and RMS rows are ``<tr data-stat="bic">`` and
+  ``<tr data-stat="rmse_force">``;
+- each model's force figure is ``<figure class="force" id="force-<k>" data-model=...>``
+  (``k`` from 0, the order of ``Analysis.models``); its residual axes are the SVG group
+  ``force<k>-residual-axes`` with ``data-xlim="<t0> <t1>"`` (s, the limits it was drawn
+  with), its background rectangle ``force<k>-residual-frame``, and each shaded misfit
+  window (``axvspan``) the group ``force<k>-misfit-window-<phase>-<i>``. A window's SVG
+  x-extent maps to seconds through the frame's x-extent and ``data-xlim``.
 
 The figures are ``matplotlib.figure.Figure`` objects on an Agg canvas, never
 registered with pyplot: no window opens whatever the caller's backend, and each is
@@ -60,15 +77,6 @@ svg { max-width: 100%; height: auto; }
 ol.steps li { margin-bottom: .6rem; }
 """
 
-# Once the page has loaded: it rendered, and this many inline figures are in it.
-SCRIPT = """
-window.addEventListener("load", function () {
-  document.body.dataset.figures = String(document.querySelectorAll("svg").length);
-  document.body.dataset.rendered = "yes";
-});
-"""
-
-
 def write_report(result: Analysis, directory: str | Path) -> Path:
     """Write ``result`` as ``report.html`` in ``directory`` (created if missing); returns its path."""
     out = Path(directory)
@@ -84,7 +92,7 @@ def render_report(result: Analysis) -> str:
     verdict, settled = verdict_text(result)
     sections = [
         f"<h1>rheo analyze: <code>{bag}</code></h1>",
-        f'<p class="verdict{"" if settled else " open"}">{html.escape(verdict)}</p>',
+        f'<p class="verdict{"" if settled else " open"}" id="verdict">{html.escape(verdict)}</p>',
         _phases_section(result),
         _diagnosis_section(result),
         _error_section(result),
@@ -96,7 +104,7 @@ def render_report(result: Analysis) -> str:
     return (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
         f"<title>rheo analyze: {bag}</title>\n<style>{STYLE}</style>\n</head>\n"
-        f"<body>\n{body}\n<script>{SCRIPT}</script>\n</body>\n</html>\n"
+        f"<body>\n{body}\n</body>\n</html>\n"
     )
 
 
@@ -151,12 +159,13 @@ def _error_section(result: Analysis) -> str:
 
 def _force_section(result: Analysis) -> str:
     parts = ["<section><h2>Total bottom force, measured and modelled</h2>"]
-    for step, fit in enumerate(result.models, start=1):
-        caption = (f"Step {step}, {fit.name}: above, the total bottom force; below, the residual "
+    for k, fit in enumerate(result.models):
+        caption = (f"Step {k + 1}, {fit.name}: above, the total bottom force; below, the residual "
                    "(model - measured), the spans where it is systematic shaded, the band two sensor "
                    "noise std wide. The residual's axis fits the readings away from the phase boundaries; "
                    "the mid-jump readings there may fall outside it.")
-        parts.append(f"<h3>{html.escape(fit.name)}</h3>{_figure(_force_svg(result, fit), caption)}")
+        attributes = f'class="force" id="force-{k}" data-model="{html.escape(fit.name)}"'
+        parts.append(f"<h3>{html.escape(fit.name)}</h3>{_figure(_force_svg(result, k), caption, attributes)}")
     parts.append("</section>")
     return "".join(parts)
 
@@ -171,40 +180,49 @@ def _mesh_section(result: Analysis) -> str:
 def _parameters_section(result: Analysis) -> str:
     parts = ["<section><h2>Parameters</h2>"]
     for step, fit in enumerate(result.models, start=1):
-        parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit)}")
+        parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit, step)}")
     cf, cf_std = result.closed_form, result.closed_form_std()
-    rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.4g}</td><td>"
-                   + ("-" if cf_std.get(k) is None else f"{cf_std[k]:.2g}")
-                   + f"</td><td>{PARAMETER_UNITS.get(k, '')}</td></tr>" for k, v in cf.params.items())
+    rows = "".join(f'<tr data-param="{html.escape(k)}"><td>{html.escape(k)}</td>{_value_cell(v, ".4g")}'
+                   + ('<td class="std" data-value="">-</td>' if cf_std.get(k) is None
+                      else _value_cell(cf_std[k], ".2g", "std"))
+                   + f"<td>{PARAMETER_UNITS.get(k, '')}</td></tr>" for k, v in cf.params.items())
     parts.append(
         f"<h3>Closed form ({html.escape(cf.method)}, eq. {html.escape(', '.join(cf.equations))})</h3>"
         "<p>std: the whole-record fit's, combined with the closed form's distance from that fit.</p>"
-        f"<table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>{rows}</table>"
+        f'<table class="parameters" id="parameters-closed-form">'
+        f"<tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>{rows}</table>"
         + (f"<p>{html.escape(cf.message)}</p>" if cf.message else ""))
     parts.append("</section>")
     return "".join(parts)
 
 
-def _model_table(fit: ModelFit) -> str:
+def _value_cell(value: float, spec: str, cls: str = "value", extra: str = "") -> str:
+    """A table cell showing ``value`` as ``spec``, the float's ``repr`` in ``data-value``."""
+    return f'<td class="{cls}" data-value="{float(value)!r}"{extra}>{value:{spec}}</td>'
+
+
+def _model_table(fit: ModelFit, step: int) -> str:
     std = fit.estimate.std
     rows = []
     for name, value in fit.estimate.params.items():
         s = std.get(name)
         if s is None:
-            shown, cls = "-", ""
+            shown = '<td class="std" data-value="">-</td>'
         elif not np.isfinite(s):
-            shown, cls = "not determined", ' class="undetermined"'
+            shown = f'<td class="std undetermined" data-value="{float(s)!r}">not determined</td>'
         else:
-            shown, cls = f"{s:.3g}", ""
-        rows.append(f"<tr><td>{html.escape(name)}</td><td>{value:.4g}</td><td{cls}>{shown}</td>"
-                    f"<td>{PARAMETER_UNITS.get(name, '')}</td></tr>")
+            shown = _value_cell(s, ".3g", "std")
+        rows.append(f'<tr data-param="{html.escape(name)}"><td>{html.escape(name)}</td>{_value_cell(value, ".4g")}'
+                    f"{shown}<td>{PARAMETER_UNITS.get(name, '')}</td></tr>")
     tactile, marker = fit.delays
-    rows.append(f'<tr><td>BIC</td><td colspan="3">{fit.bic:.6g}</td></tr>')
-    rows.append(f'<tr><td>RMS error, total force (N)</td><td colspan="3">{fit.rmse_force:.3g}</td></tr>')
+    across = ' colspan="3"'
+    rows.append(f'<tr data-stat="bic"><td>BIC</td>{_value_cell(fit.bic, ".6g", extra=across)}</tr>')
+    rows.append(f'<tr data-stat="rmse_force"><td>RMS error, total force (N)</td>'
+                f'{_value_cell(fit.rmse_force, ".3g", extra=across)}</tr>')
     rows.append(f'<tr><td>clock offsets, tactile / markers (ms)</td>'
                 f'<td colspan="3">{1e3 * tactile:.1f} / {1e3 * marker:.1f}</td></tr>')
-    return ("<table><tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>"
-            + "".join(rows) + "</table>")
+    return (f'<table class="parameters" id="parameters-step-{step}" data-model="{html.escape(fit.name)}">'
+            "<tr><th>parameter</th><th>value</th><th>std</th><th>unit</th></tr>" + "".join(rows) + "</table>")
 
 
 # -- figures --------------------------------------------------------------------------
@@ -222,7 +240,9 @@ def _new_figure(width: float, height: float) -> Iterator[Figure]:
 
 def _svg(fig: Figure, figure_id: str) -> str:
     """``fig`` as an inline ``<svg>`` element: no XML prolog, no metadata, its ids
-    prefixed with ``figure_id`` so that figures on one page cannot collide."""
+    prefixed with ``figure_id`` so that figures on one page cannot collide. The group
+    of each axes given a gid carries the limits it was drawn with, ``data-xlim`` and
+    ``data-ylim`` (``"<low> <high>"``, the floats' ``repr``)."""
     buf = io.StringIO()
     # Text as paths: the page looks the same whatever fonts the reader's browser has.
     with matplotlib.rc_context({"svg.fonttype": "path", "svg.hashsalt": figure_id}):
@@ -230,13 +250,23 @@ def _svg(fig: Figure, figure_id: str) -> str:
     svg = buf.getvalue()
     svg = svg[svg.index("<svg"):]
     svg = re.sub(r"<metadata>.*?</metadata>\s*", "", svg, flags=re.S)
+    for ax in fig.axes:
+        if ax.get_gid():
+            tag = f'<g id="{ax.get_gid()}">'
+            if svg.count(tag) != 1:
+                raise ValueError(f"figure {figure_id}: axes gid {ax.get_gid()!r} not found once in the SVG")
+            x0, x1 = map(float, ax.get_xlim())
+            y0, y1 = map(float, ax.get_ylim())
+            svg = svg.replace(tag, f'<g id="{ax.get_gid()}" data-xlim="{x0!r} {x1!r}" data-ylim="{y0!r} {y1!r}">')
     svg = re.sub(r'\bid="([^"]+)"', rf'id="{figure_id}-\1"', svg)
     svg = re.sub(r'href="#([^"]+)"', rf'href="#{figure_id}-\1"', svg)
     return re.sub(r"url\(#([^)]+)\)", rf"url(#{figure_id}-\1)", svg)
 
 
-def _figure(svg: str, caption: str) -> str:
-    return f"<figure>{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
+def _figure(svg: str, caption: str, attributes: str = "") -> str:
+    """``svg`` with its caption; ``attributes``: the ``<figure>`` element's, as HTML."""
+    opening = f"<figure {attributes}>" if attributes else "<figure>"
+    return f"{opening}{svg}<figcaption>{html.escape(caption)}</figcaption></figure>"
 
 
 def _shade_phases(ax: Axes, phases: Sequence[Phase], label: bool = False, shade: bool = True) -> None:
@@ -298,14 +328,18 @@ def _merged(windows: Sequence[tuple[float, float]]) -> list[tuple[float, float]]
     return out
 
 
-def _force_svg(result: Analysis, fit: ModelFit) -> str:
+def _force_svg(result: Analysis, k: int) -> str:
+    """Model ``k``'s total force against the measured, and its residual with the misfit
+    windows shaded (their ids and the axes' limits as the module's docstring says)."""
+    fit = result.models[k]
     record = result.record
     profile = record.profile()
     t = record.force_t
     measured = record.force.sum(axis=1)
     residual = fit.prediction_total - measured
     totals = [s for s in fit.comparison.stats if s.signal == "total"]
-    windows = _merged([w for s in totals for w in s.windows])
+    # Each phase's windows, merged where they overlap (a phase's runs never do).
+    windows = [(s.phase, i, a, b) for s in totals for i, (a, b) in enumerate(_merged(s.windows))]
     noise = totals[0].noise if totals else np.nan
     steady = away_from_boundaries(t, profile)
     with _new_figure(9, 5.0) as fig:
@@ -316,9 +350,11 @@ def _force_svg(result: Analysis, fit: ModelFit) -> str:
         top.plot(t, fit.prediction_total, color=MODEL_COLOUR, lw=1.2, label=fit.name)
         top.set_ylabel("total bottom force (N)")
         top.legend(fontsize=8, loc="upper right")
-        for i, (a, b) in enumerate(windows):
-            bottom.axvspan(a, b, color=WINDOW_COLOUR, alpha=0.18, lw=0,
-                           label="systematic residual" if i == 0 else None)
+        bottom.set_gid("residual-axes")
+        bottom.patch.set_gid("residual-frame")
+        for n, (phase, i, a, b) in enumerate(windows):
+            bottom.axvspan(a, b, color=WINDOW_COLOUR, alpha=0.18, lw=0, gid=f"misfit-window-{phase}-{i}",
+                           label="systematic residual" if n == 0 else None)
         if np.isfinite(noise):
             bottom.axhspan(-2 * noise, 2 * noise, color="#adb5bd", alpha=0.35, lw=0, label="±2 σ sensor noise")
         bottom.plot(t, residual, color=MODEL_COLOUR, lw=0.6)
@@ -331,7 +367,7 @@ def _force_svg(result: Analysis, fit: ModelFit) -> str:
         bottom.set_xlabel("time (s)")
         if windows or np.isfinite(noise):
             bottom.legend(fontsize=8, loc="lower right")
-        return _svg(fig, f"force{result.models.index(fit)}")
+        return _svg(fig, f"force{k}")
 
 
 def _magnification(displacements: Sequence[np.ndarray], size: float) -> float:

@@ -1,8 +1,12 @@
 """The hardware stand-in: stage samples in, tactile images and marker frames out.
 
-One streaming core for the simulator node (stage messages over DDS) and for
-``rheo simulate`` (stage samples from the profile, written to a bag): both step the
-same FE model with the same stage samples, so their outputs agree.
+The one simulator of the package, built from a ``Setup`` (geometry, material, hidden
+effects, sensors, rates): ``Simulator`` streams it for the simulator node (stage
+messages over DDS); ``simulate_clean`` runs it over the whole profile at once, then
+``observe`` adds the sensors (what ``rheo simulate`` writes) or ``CleanRun.record``
+gives the noise-free record the benches and tests identify. The same FE model and
+effects in each, so their outputs agree; the one noise model is the sensors'
+(``rheo_ros.sensors``).
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import numpy as np
 from rheo_ros.config.setup import Setup
 from rheo_ros.experiment import sample_times
 from rheo_ros.models.effects import Release
+from rheo_ros.record import Record
 
 
 @dataclass(frozen=True)
@@ -124,15 +129,22 @@ class Run:
 
 @dataclass(frozen=True)
 class CleanRun:
-    """What the sensors would report without noise: the FE model's run, once."""
+    """The FE model's run, once, before any sensor: what each bottom node's segment
+    would feel (effects included) and where the markers are."""
 
     stage_t: np.ndarray
     stage_depth: np.ndarray
     stage_velocity: np.ndarray
     tactile_t: np.ndarray
-    pressure: np.ndarray     # (T, rows, cols) Pa, noise-free
+    force: np.ndarray        # (T, nodes) N, felt by each tactile segment, noise-free
     marker_t: np.ndarray
     positions: np.ndarray    # (Tm, N, 2) m, noise-free
+
+    def record(self, setup: Setup, source: str) -> Record:
+        """The noise-free record of this run as the model has it (segment forces, no
+        dead band): the benches' and tests' reference data."""
+        return Record(mesh=setup.mesh, stage_t=self.stage_t, stage_depth=self.stage_depth, force_t=self.tactile_t,
+                      force=self.force, marker_t=self.marker_t, markers=self.positions, source=source)
 
 
 def simulate_clean(setup: Setup) -> CleanRun:
@@ -143,18 +155,19 @@ def simulate_clean(setup: Setup) -> CleanRun:
     stage_t, depth, velocity = stage_samples(setup)
     tactile_t = sample_times(profile.t_end, p["rates.tactile"])
     marker_t = sample_times(profile.t_end, p["rates.markers"])
-    t = np.union1d(tactile_t, marker_t)
+    # Steps on the stage's grid too, as the streaming ``Simulator`` does: the same steps,
+    # the same numbers (the step size moves the FE's results by ~1e-8).
+    t = np.union1d(stage_t, np.union1d(tactile_t, marker_t))
     res = fe.simulate(profile, t)
     felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)
     ti, mi = np.searchsorted(t, tactile_t), np.searchsorted(t, marker_t)
-    return CleanRun(stage_t, depth, velocity, tactile_t, setup.tactile.pressure(felt[ti]), marker_t,
-                    mesh.nodes[None] + res.displacement[mi])
+    return CleanRun(stage_t, depth, velocity, tactile_t, felt[ti], marker_t, mesh.nodes[None] + res.displacement[mi])
 
 
 def observe(setup: Setup, clean: CleanRun, seed: int = 0) -> Run:
     """The sensors' reports of a clean run: the same noise as ``Simulator`` for ``seed``."""
     tactile_seq, marker_seq = np.random.SeedSequence(seed).spawn(2)
-    images = setup.tactile.read(clean.pressure, np.random.default_rng(tactile_seq))
+    images = setup.tactile.read(setup.tactile.pressure(clean.force), np.random.default_rng(tactile_seq))
     markers = setup.camera.observe(clean.positions, np.random.default_rng(marker_seq))
     return Run(clean.stage_t, clean.stage_depth, clean.stage_velocity, clean.tactile_t, images,
                clean.marker_t, markers)

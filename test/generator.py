@@ -1,0 +1,394 @@
+"""A second data generator that shares no code with rheo_ros (issue 20, item 4).
+
+It writes bags in the public format of the interface contract ("Topics",
+"Recorded bags", "Parameters file") from its own physics and its own sensor models, so
+that an accuracy figure can be checked against data the package did not make itself.
+Every figure made from these bags should say "generator: test/generator.py".
+
+Physics, written from the model's definition: a homogeneous block W x H x T between
+frictionless faces, so stress and strain are uniform and uniaxial. Strain eps = s / H
+with s the top's sinking. Three-element model: a Voigt element (spring E, dashpot c1 in
+parallel) in series with a dashpot c2; eps = eps_v + eps_d and
+
+    sigma = E eps_v + c1 d(eps_v)/dt = c2 d(eps_d)/dt.
+
+While the stage touches the top, eps is prescribed and eps_d is integrated with
+scipy's solve_ivp, one phase at a time (the strain rate jumps at the knots). Once the
+specimen is free its total stress is zero and it recovers on its own.
+
+Only numpy, scipy, yaml and rosbags are imported: nothing from rheo_ros, on purpose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from rosbags.typesys import Stores, get_typestore
+from scipy.integrate import solve_ivp
+
+GENERATOR_ID = "test/generator.py (independent homogeneous block, scipy solve_ivp)"
+PARAMS_KEY = "rheo_ros.params"
+STAGE, TACTILE, MARKERS = "/stage/joint_states", "/tactile/pressure", "/markers/mesh"
+TOPICS = {STAGE: "sensor_msgs/msg/JointState", TACTILE: "sensor_msgs/msg/Image",
+          MARKERS: "geometry_msgs/msg/PoseArray"}
+
+
+@dataclass(frozen=True)
+class Material:
+    """Three-element parameters (the paper's Table IV by default): Pa, Pa s, Pa s, -."""
+    E: float = 3.33e4
+    c1: float = 1.69e5
+    c2: float = 3.11e7
+    gamma: float = 0.332
+
+
+@dataclass(frozen=True)
+class Profile:
+    """The stage's program (m, m/s, s). retract_speed None: the stage leaves at once."""
+    start_delay: float = 1.0
+    velocity: float = 5e-4
+    depth: float = 0.010
+    keep_time: float = 48.0
+    release_time: float = 100.0
+    retract_speed: float | None = None
+
+    @property
+    def knots(self) -> tuple[float, float, float, float]:
+        """Contact, end of pull, release, end of record (s)."""
+        t0 = self.start_delay
+        t1 = t0 + self.depth / self.velocity
+        t2 = t1 + self.keep_time
+        return t0, t1, t2, t2 + self.release_time
+
+    def stage(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stage depth and velocity at t; right-continuous at the knots (a sample on a
+        knot belongs to the phase that starts there)."""
+        t0, t1, t2, _ = self.knots
+        depth = np.clip(self.velocity * (t - t0), 0.0, self.depth)
+        vel = np.where((t >= t0) & (t < t1), self.velocity, 0.0)
+        after = t >= t2
+        if self.retract_speed is None:
+            depth = np.where(after, 0.0, depth)
+        else:
+            back = np.maximum(self.depth - self.retract_speed * (t - t2), 0.0)
+            depth = np.where(after, back, depth)
+            vel = np.where(after & (back > 0.0), -self.retract_speed, vel)
+        return depth, vel
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Specimen size (m), sensor layout and sampling rates (Hz), contract defaults."""
+    width: float = 0.080
+    height: float = 0.080
+    thickness: float = 0.0125
+    tactile_rows: int = 6
+    tactile_cols: int = 32
+    marker_rows: int = 5
+    marker_cols: int = 5
+    rate_stage: float = 100.0
+    rate_tactile: float = 50.0
+    rate_markers: float = 10.0
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Hidden effects, deliberately with other laws than the package's simulator.
+
+    stiffening: k (1/strain); the Voigt spring alone gives E (exp(k eps_v) - 1) / k.
+    maxwell: (E_i Pa, tau_i s) arms in parallel with the whole three-element model.
+    adhesion: (p0 Pa, tau s): after release the bottom reads p0 exp(-t/tau), a positive
+        pressure the free specimen does not carry (tau = inf: a constant stuck layer).
+    drift: (a Pa, tau s, spread): each cell's baseline settles as a_j (1 - exp(-t/tau)),
+        a_j = a (1 + spread N(0, 1)) drawn per cell from the seed.
+    """
+    stiffening: float | None = None
+    maxwell: tuple[tuple[float, float], ...] = ()
+    adhesion: tuple[float, float] | None = None
+    drift: tuple[float, float, float] | None = None
+
+
+EFFECTS: dict[str, Effects] = {
+    "none": Effects(),
+    "strain_stiffening": Effects(stiffening=4.0),
+    "relaxation_branch": Effects(maxwell=((1.5e4, 4.0), (8.0e3, 25.0))),
+    "adhesion": Effects(adhesion=(1000.0, 200.0)),
+    "sensor_drift": Effects(drift=(400.0, 60.0, 0.25)),
+}
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Tactile cells and camera. Order of the cell's chain: noise, floor at zero,
+    dead band (readings under it read 0), quantisation, saturation."""
+    name: str
+    noise: float = 100.0            # Pa, Gaussian per cell and frame
+    floor: bool = True              # a pressure cell reads no tension
+    dead_band: float = 0.0          # Pa
+    resolution: float = 0.0         # Pa per step; 0: continuous
+    saturation: float = math.inf    # Pa
+    marker_noise: float = 2e-5      # m, Gaussian per coordinate
+
+
+SENSORS: dict[str, Sensor] = {
+    "default_like": Sensor("default_like", dead_band=300.0, resolution=10.0),
+    "no_dead_band": Sensor("no_dead_band"),
+    "clipped": Sensor("clipped", dead_band=300.0, resolution=10.0, saturation=4000.0),
+    "quantised": Sensor("quantised", resolution=50.0),
+    "noisy_camera": Sensor("noisy_camera", dead_band=300.0, resolution=10.0, marker_noise=1e-4),
+    "noise_free": Sensor("noise_free", noise=0.0, floor=False, marker_noise=0.0),
+}
+
+
+@dataclass(frozen=True)
+class Truth:
+    """What made a bag: written beside it as <bag>.truth.json."""
+    generator: str
+    seed: int
+    material: Material
+    effects: Effects
+    sensor: Sensor
+    profile: Profile
+    layout: Layout
+    knots: tuple[float, float, float, float]   # contact, end of pull, release, end (s)
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2, default=str)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Noise-free mechanics at times t: strain (s/H), total stress on the bottom
+    (Pa, compression positive, 0 when free) and whether the stage touches the top."""
+    t: np.ndarray
+    eps: np.ndarray
+    sigma: np.ndarray
+    contact: np.ndarray
+
+
+def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarray,
+             height: float = Layout.height) -> Trajectory:
+    """Integrate the block phase by phase and evaluate it at the (sorted) times t.
+
+    State y = [eps, eps_d, s_1..s_n] (s_i the Maxwell arms' stresses). In contact the
+    strain rate is the stage's (constant within a phase, so eps is integrated exactly);
+    free, the strain rate is whatever makes the total stress zero. Each sample takes
+    the phase it falls in, half-open, so a sample on a knot belongs to the next phase.
+    """
+    E, c1, c2, k = material.E, material.c1, material.c2, effects.stiffening
+    arm_E = np.array([a[0] for a in effects.maxwell])
+    arm_tau = np.array([a[1] for a in effects.maxwell])
+    t = np.asarray(t, float)
+    t0, t1, t2, t_end = profile.knots
+
+    def spring(ev: float) -> float:
+        return E * ev if not k else E * math.expm1(k * ev) / k
+
+    def contact_stress(y: np.ndarray, rate: float) -> float:
+        return (spring(y[0] - y[1]) + c1 * rate) / (1.0 + c1 / c2) + float(np.sum(y[2:]))
+
+    def rhs_contact(_t: float, y: np.ndarray, rate: float) -> np.ndarray:
+        sig3 = (spring(y[0] - y[1]) + c1 * rate) / (1.0 + c1 / c2)
+        return np.concatenate(([rate, sig3 / c2], arm_E * rate - y[2:] / arm_tau))
+
+    def rhs_free(_t: float, y: np.ndarray) -> np.ndarray:
+        arms = float(np.sum(y[2:]))
+        rate = -(spring(y[0] - y[1]) + (1.0 + c1 / c2) * arms) / c1
+        # The three-element branch then carries -arms, so that the total stays zero.
+        return np.concatenate(([rate, -arms / c2], arm_E * rate - y[2:] / arm_tau))
+
+    # Tight tolerances: the tests hold the stress to closed forms at 1e-6 relative.
+    # max_step well under the fastest time constant so dense output stays accurate.
+    opts = {"method": "DOP853", "rtol": 1e-11, "dense_output": True,
+            "max_step": min([c1 / E, *arm_tau.tolist()]) / 20,
+            "atol": np.array([1e-15, 1e-15] + [1e-10] * len(arm_tau))}
+    eps, sigma, contact = np.zeros_like(t), np.zeros_like(t), np.zeros(t.shape, bool)
+
+    def fill(a: float, b: float, sol: Any, rate: float | None, last: bool = False) -> None:
+        sel = (t >= a) & ((t <= b) if last else (t < b))
+        if sel.any():
+            ys = sol.sol(t[sel])
+            eps[sel] = ys[0]
+            if rate is not None:   # free: the bottom carries nothing
+                contact[sel] = True
+                sigma[sel] = [contact_stress(col, rate) for col in ys.T]
+
+    y = np.zeros(2 + len(arm_tau))   # before contact nothing moves: all zero
+    for a, b, rate in ((t0, t1, profile.velocity / height), (t1, t2, 0.0)):
+        sol = solve_ivp(rhs_contact, (a, b), y, args=(rate,), **opts)
+        fill(a, b, sol, rate)
+        y = sol.y[:, -1]
+    a = t2
+    if profile.retract_speed is not None and contact_stress(y, -profile.retract_speed / height) > 0.0:
+        # The stage retracts slower than the specimen recovers: the top follows the
+        # stage, pushing on it, until its stress falls to zero. Then it is free; a free
+        # recovery only slows down (linear model), so it never catches the stage again.
+        rate = -profile.retract_speed / height
+
+        def leaves(_t: float, yy: np.ndarray, r: float) -> float:
+            return contact_stress(yy, r)
+        leaves.terminal, leaves.direction = True, -1  # type: ignore[attr-defined]
+        end = min(t_end, t2 + profile.depth / profile.retract_speed)
+        sol = solve_ivp(rhs_contact, (t2, end), y, args=(rate,), events=leaves, **opts)
+        a = float(sol.t[-1])
+        fill(t2, a, sol, rate)
+        y = sol.y[:, -1]
+    if a < t_end:
+        sol = solve_ivp(rhs_free, (a, t_end), y, **opts)
+        fill(a, t_end, sol, None, last=True)
+    return Trajectory(t, eps, sigma, contact)
+
+
+def sample_times(rate: float, t_end: float) -> np.ndarray:
+    """k / rate from 0 to the end inclusive (k integer, no accumulated rounding)."""
+    return np.arange(math.floor(t_end * rate + 1e-9) + 1) / rate
+
+
+@dataclass(frozen=True)
+class Data:
+    """What the sensors report, noise included (the bag's content, before encoding)."""
+    stage_t: np.ndarray
+    depth: np.ndarray
+    velocity: np.ndarray
+    tactile_t: np.ndarray
+    images: np.ndarray     # (T, rows, cols) float32 Pa
+    marker_t: np.ndarray
+    markers: np.ndarray    # (Tm, rows * cols, 2) m, row-major, bottom row first
+
+
+def synthesize(material: Material = Material(), effects: Effects = Effects(), sensor: Sensor | str = "default_like",
+               seed: int = 0, profile: Profile = Profile(), layout: Layout = Layout()) -> Data:
+    """Mechanics, then each sensor. One numpy Generator per stream (spawned from the
+    seed), so the same seed gives the same bag and a new effect leaves the others' noise."""
+    sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
+    t_end = profile.knots[3]
+    stage_t, tac_t, mk_t = (sample_times(r, t_end) for r in (layout.rate_stage, layout.rate_tactile,
+                                                             layout.rate_markers))
+    depth, velocity = profile.stage(stage_t)
+    tac_rng, cam_rng, drift_rng = np.random.default_rng(seed).spawn(3)
+    shape = (tac_t.size, layout.tactile_rows, layout.tactile_cols)
+
+    # Tactile: every cell reads the uniform bottom stress (the block is homogeneous).
+    p = np.broadcast_to(simulate(material, effects, profile, tac_t, layout.height).sigma[:, None, None], shape).copy()
+    if effects.adhesion is not None:
+        p0, tau = effects.adhesion
+        t_rel = profile.knots[2]
+        p += np.where(tac_t >= t_rel, p0 * np.exp(-(tac_t - t_rel) / tau), 0.0)[:, None, None]
+    if effects.drift is not None:
+        a, tau, spread = effects.drift
+        amp = a * (1.0 + spread * drift_rng.standard_normal(shape[1:]))
+        p += amp[None] * (1.0 - np.exp(-tac_t / tau))[:, None, None]
+    if sensor.noise > 0:
+        p += sensor.noise * tac_rng.standard_normal(shape)
+    if sensor.floor:
+        p = np.maximum(p, 0.0)
+    if sensor.dead_band > 0:
+        p = np.where(p < sensor.dead_band, 0.0, p)
+    if sensor.resolution > 0:
+        p = np.round(p / sensor.resolution) * sensor.resolution
+    p = np.minimum(p, sensor.saturation)
+
+    # Markers: u_y = -eps y (bottom on the sensor), u_x = gamma eps (x - W/2) (free sides).
+    eps = simulate(material, effects, profile, mk_t, layout.height).eps
+    gx, gy = np.meshgrid(np.linspace(0, layout.width, layout.marker_cols),
+                         np.linspace(0, layout.height, layout.marker_rows))
+    x0, y0 = gx.ravel(), gy.ravel()   # row-major, bottom row first
+    xy = np.stack([x0 + material.gamma * eps[:, None] * (x0 - layout.width / 2),
+                   y0 - eps[:, None] * y0], axis=-1)
+    if sensor.marker_noise > 0:
+        xy = xy + sensor.marker_noise * cam_rng.standard_normal(xy.shape)
+    return Data(stage_t, depth, velocity, tac_t, p.astype(np.float32), mk_t, xy)
+
+
+def params_document(layout: Layout) -> dict[str, Any]:
+    """The contract's parameters file (its names only), ROS params-file shape."""
+    return {"/**": {"ros__parameters": {
+        "geometry": "uniaxial",
+        "specimen": {"width": layout.width, "height": layout.height, "thickness": layout.thickness},
+        "tactile": {"rows": layout.tactile_rows, "cols": layout.tactile_cols},
+        "markers": {"rows": layout.marker_rows, "cols": layout.marker_cols}}}}
+
+
+def write_bag(data: Data, out: Path, params_yaml: str | None = None, compress: bool = False) -> None:
+    """One rosbag2 directory (metadata.yaml + one .mcap, CDR); log time = header stamp."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    Header, Time = T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+    Pose, Point, Quat = T["geometry_msgs/msg/Pose"], T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
+
+    def header(ns: int, frame: str) -> Any:
+        return Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
+
+    def encode(kind: int, i: int, ns: int) -> Any:
+        if kind == 0:
+            return T[TOPICS[STAGE]](header=header(ns, ""), name=["stage"],
+                                    position=np.array([data.depth[i]]), velocity=np.array([data.velocity[i]]),
+                                    effort=np.array([], float))
+        if kind == 1:
+            img = data.images[i]
+            raw = np.ascontiguousarray(img, dtype="<f4").view(np.uint8).ravel()
+            return T[TOPICS[TACTILE]](header=header(ns, "tactile"), height=img.shape[0], width=img.shape[1],
+                                      encoding="32FC1", is_bigendian=0, step=4 * img.shape[1], data=raw)
+        poses = [Pose(position=Point(x=float(x), y=float(y), z=0.0), orientation=Quat(x=0.0, y=0.0, z=0.0, w=1.0))
+                 for x, y in data.markers[i]]
+        return T[TOPICS[MARKERS]](header=header(ns, "specimen"), poses=poses)
+
+    series = [data.stage_t, data.tactile_t, data.marker_t]
+    stamps = np.concatenate([np.round(s * 1e9).astype(np.int64) for s in series])
+    kinds = np.concatenate([np.full(s.size, k) for k, s in enumerate(series)])
+    index = np.concatenate([np.arange(s.size) for s in series])
+    order = np.lexsort((kinds, stamps))   # by stamp, ties stage < tactile < markers
+    writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    if params_yaml is not None:
+        writer.set_custom_data(PARAMS_KEY, params_yaml)
+    with writer:
+        conns = [writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in TOPICS.items()]
+        for ns, k, i in zip(stamps[order].tolist(), kinds[order].tolist(), index[order].tolist()):
+            writer.write(conns[k], ns, store.serialize_cdr(encode(k, i, ns), conns[k].msgtype))
+
+
+def generate(out_dir: str | Path, *, material: Material = Material(), effects: Effects | str = "none",
+             sensor: Sensor | str = "default_like", seed: int = 0, profile: Profile = Profile(),
+             layout: Layout = Layout(), params_in_metadata: bool = True, params_file: bool = True,
+             compress: bool = False) -> Path:
+    """Write a bag at out_dir (must not exist) and, beside it, <name>.truth.json and
+    (params_file) <name>.params.yaml for ``rheo analyze --params-file``. Returns out_dir."""
+    out = Path(out_dir)
+    effects = EFFECTS[effects] if isinstance(effects, str) else effects
+    sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
+    text = yaml.safe_dump(params_document(layout), sort_keys=False)
+    data = synthesize(material, effects, sensor, seed, profile, layout)
+    write_bag(data, out, text if params_in_metadata else None, compress)
+    if params_file:
+        out.with_name(out.name + ".params.yaml").write_text(text)
+    truth = Truth(GENERATOR_ID, seed, material, effects, sensor, profile, layout, profile.knots)
+    out.with_name(out.name + ".truth.json").write_text(truth.to_json())
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description="Independent bag generator (homogeneous block).")
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--effect", default="none", choices=sorted(EFFECTS))
+    ap.add_argument("--sensor", default="default_like", choices=sorted(SENSORS))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--retract-speed", type=float, default=None)
+    ap.add_argument("--no-params-in-metadata", action="store_true")
+    args = ap.parse_args(argv)
+    generate(args.out, effects=args.effect, sensor=args.sensor, seed=args.seed,
+             profile=Profile(retract_speed=args.retract_speed), params_in_metadata=not args.no_params_in_metadata)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""The bag reader (``rheo_ros.io.bag``) on the small reference bag ``table_I_short`` (632 kB,
+read in about half a second) and on tiny bags written here: what it decodes, and each
+refusal naming its file and topic. Mutation testing runs these (``./tasks mutation``)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+
+from rheo_ros.io.bag import (
+    PARAMS_KEY,
+    BagWriter,
+    bag_samples,
+    message_definitions,
+    read_bag,
+    read_params,
+    seconds_to_ns,
+    write_run,
+)
+from rheo_ros.io.errors import BagError
+from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC, TOPIC_TYPES
+
+BAG = Path(__file__).resolve().parents[1] / "bags" / "table_I_short"
+
+
+@pytest.fixture(scope="module")
+def contents():
+    return read_bag(BAG)
+
+
+def test_the_reference_bag_decodes_into_its_record(contents):
+    rec, params = contents.record, contents.params
+    assert params == read_params(BAG)
+    assert params["stage.depth"] == 0.5 and params["geometry"] == "uniaxial"
+    assert rec.source == str(BAG)
+    # 100 Hz stage, 50 Hz tactile, 10 Hz markers over 1 + 20 + 20 + 60 s.
+    assert rec.stage_t.size == 10101 and rec.force_t.size == 5051 and rec.marker_t.size == 1011
+    for t in (rec.stage_t, rec.force_t, rec.marker_t):
+        assert t[0] == 0.0 and t[-1] == pytest.approx(101.0) and np.all(np.diff(t) > 0)
+    np.testing.assert_array_equal(contents.tactile_t, rec.force_t)
+    assert contents.tactile.shape == (5051, 6, 32) and rec.markers.shape == (1011, 25, 2)
+    assert rec.stage_depth.max() == pytest.approx(0.5) and rec.stage_depth[0] == 0.0
+    assert contents.stage_velocity.shape == rec.stage_depth.shape
+    assert contents.stage_velocity.max() == pytest.approx(0.025)
+    p = rec.profile()
+    assert p.t_pull_start == pytest.approx(1.0, abs=0.01) and p.pull_time == pytest.approx(20.0, abs=0.02)
+    np.testing.assert_allclose(rec.markers[0], rec.mesh.nodes, atol=1e-12)
+    assert rec.force[:, :].sum(axis=1).max() > 0
+
+
+def test_samples_come_in_recorded_order_with_header_stamps(contents):
+    samples = list(bag_samples(BAG))
+    kinds = [s for s, _, _ in samples]
+    assert kinds.count("stage") == 10101 and kinds.count("image") == 5051 and kinds.count("markers") == 1011
+    stage = [(t, v) for s, t, v in samples if s == "stage"]
+    np.testing.assert_array_equal([t for t, _ in stage], contents.record.stage_t)
+    np.testing.assert_array_equal([v for _, v in stage], contents.record.stage_depth)
+    image = next(v for s, _, v in samples if s == "image")
+    np.testing.assert_array_equal(image, contents.tactile[0])
+    markers = [v for s, _, v in samples if s == "markers"]
+    np.testing.assert_array_equal(markers[-1], contents.record.markers[-1])
+    stamps = [t for _, t, _ in samples]
+    assert stamps == sorted(stamps)
+
+
+def test_params_are_read_from_the_metadata_or_refused(tmp_path):
+    with pytest.raises(BagError, match=r"metadata.yaml: cannot read: No such file or directory"):
+        read_params(tmp_path)
+    meta = tmp_path / "metadata.yaml"
+    meta.write_text("a: [b")
+    with pytest.raises(BagError, match=r"metadata.yaml: not YAML: "):
+        read_params(tmp_path)
+    meta.write_text("- 1\n")
+    with pytest.raises(BagError, match=r"metadata.yaml: no rosbag2_bagfile_information mapping"):
+        read_params(tmp_path)
+    meta.write_text(yaml.safe_dump({"rosbag2_bagfile_information": [1]}))
+    with pytest.raises(BagError, match=r"no rosbag2_bagfile_information mapping"):
+        read_params(tmp_path)
+    meta.write_text(yaml.safe_dump({"rosbag2_bagfile_information": {"custom_data": [1]}}))
+    with pytest.raises(BagError, match=r"metadata.yaml: custom_data is not a mapping"):
+        read_params(tmp_path)
+    meta.write_text(yaml.safe_dump({"rosbag2_bagfile_information": {"custom_data": None}}))
+    assert read_params(tmp_path) is None
+    meta.write_text(yaml.safe_dump({"rosbag2_bagfile_information": {"version": 9}}))
+    assert read_params(tmp_path) is None
+    meta.write_text(yaml.safe_dump({"rosbag2_bagfile_information": {"custom_data": {PARAMS_KEY: ""}}}))
+    assert read_params(tmp_path) is None
+
+
+def test_read_bag_refuses_what_is_not_a_bag_of_the_contract(tmp_path, contents):
+    with pytest.raises(BagError, match=r"not a rosbag2 directory \(no metadata.yaml\)"):
+        read_bag(tmp_path)
+    copy = tmp_path / "copy"
+    shutil.copytree(BAG, copy)
+    info = yaml.safe_load((copy / "metadata.yaml").read_text())
+    info["rosbag2_bagfile_information"]["custom_data"] = {}
+    (copy / "metadata.yaml").write_text(yaml.safe_dump(info))
+    with pytest.raises(BagError, match=r"copy: no parameters in the bag's metadata; give --params-file"):
+        read_bag(copy)
+    # Given the parameters, the same bag reads as before.
+    again = read_bag(copy, params=contents.params)
+    np.testing.assert_array_equal(again.record.force, contents.record.force)
+    wrong = {**contents.params, "markers.rows": 4}
+    with pytest.raises(BagError, match=r"/markers/mesh: 25 markers, parameters say 20"):
+        read_bag(copy, params=wrong)
+    for mcap in copy.glob("*.mcap"):
+        mcap.write_bytes(mcap.read_bytes()[:2000])
+    with pytest.raises(BagError, match=r"copy: cannot read bag: "):
+        read_bag(copy, params=contents.params)
+    with pytest.raises(BagError, match=r"copy: cannot read bag: "):
+        list(bag_samples(copy))
+
+
+def run_of(contents, n=30):
+    rec = contents.record
+    return SimpleNamespace(stage_t=rec.stage_t[:n], stage_depth=rec.stage_depth[:n],
+                           stage_velocity=contents.stage_velocity[:n], tactile_t=contents.tactile_t[:n],
+                           tactile=contents.tactile[:n], marker_t=rec.marker_t[:n], markers=rec.markers[:n])
+
+
+def test_a_written_run_reads_back(tmp_path, contents):
+    run = run_of(contents)
+    counts = write_run(run, contents.params, tmp_path / "b")
+    assert counts == {STAGE_TOPIC: 30, TACTILE_TOPIC: 30, MARKERS_TOPIC: 30}
+    back = read_bag(tmp_path / "b")
+    assert back.params == contents.params
+    np.testing.assert_array_equal(back.record.stage_t, run.stage_t)
+    np.testing.assert_array_equal(back.record.stage_depth, run.stage_depth)
+    np.testing.assert_array_equal(back.stage_velocity, run.stage_velocity)
+    np.testing.assert_array_equal(back.tactile, run.tactile)
+    np.testing.assert_array_equal(back.record.marker_t, run.marker_t)
+    np.testing.assert_allclose(back.record.markers, run.markers, rtol=1e-6)
+    # In stamp order, stage before tactile before markers at one stamp.
+    order = [s for s, _, _ in bag_samples(tmp_path / "b")]
+    assert order[:3] == ["stage", "image", "markers"]
+
+
+def test_missing_topics_and_wrong_image_sizes_are_named(tmp_path, contents):
+    run = run_of(contents, 5)
+    with BagWriter(tmp_path / "no_markers", contents.params, topics={STAGE_TOPIC: TOPIC_TYPES[STAGE_TOPIC]},
+                   compress=False) as w:
+        from rheo_ros.io.messages import JointStateEncoder
+        enc = JointStateEncoder(w.types)
+        for t, d, v in zip(run.stage_t, run.stage_depth, run.stage_velocity):
+            w.write(STAGE_TOPIC, seconds_to_ns(t), enc(seconds_to_ns(t), d, v))
+    with pytest.raises(BagError, match=r"no_markers: /tactile/pressure: no messages"):
+        read_bag(tmp_path / "no_markers")
+    small = SimpleNamespace(**{**vars(run), "tactile": run.tactile[:, :3, :]})
+    write_run(small, contents.params, tmp_path / "small")
+    with pytest.raises(BagError, match=r"/tactile/pressure: images \(3, 32\), parameters say 6 x 32"):
+        read_bag(tmp_path / "small")
+
+
+def test_seconds_to_ns_rounds():
+    assert seconds_to_ns(1.0000000004) == 1_000_000_000 and seconds_to_ns(0.0000000006) == 1
+    assert seconds_to_ns(2.5) == 2_500_000_000
+
+
+def test_message_definitions_include_the_types_they_use():
+    defs = message_definitions(["sensor_msgs/msg/JointState"])
+    assert "std_msgs/msg/Header" in defs and "builtin_interfaces/msg/Time" in defs
+    assert "float64[] position" in defs["sensor_msgs/msg/JointState"]
+    assert "=" * 80 not in defs["sensor_msgs/msg/JointState"]
+
+
+def chunk_compression(bag: Path) -> set[str]:
+    from mcap.reader import make_reader
+
+    (mcap,) = bag.glob("*.mcap")
+    with mcap.open("rb") as f:
+        return {c.compression for c in make_reader(f).get_summary().chunk_indexes}
+
+
+def test_bags_are_zstd_compressed_unless_asked_not_to_and_raw_messages_pass_through(tmp_path, contents):
+    run = run_of(contents, 5)
+    write_run(run, contents.params, tmp_path / "z")
+    assert chunk_compression(tmp_path / "z") == {"zstd"}
+    with BagWriter(tmp_path / "raw", contents.params, compress=False) as w:
+        from rheo_ros.io.messages import JointStateEncoder
+        enc = JointStateEncoder(w.types)
+        for t, d, v in zip(run.stage_t, run.stage_depth, run.stage_velocity):
+            ns = seconds_to_ns(t)
+            w.write_raw(STAGE_TOPIC, ns, w.store.serialize_cdr(enc(ns, d, v), TOPIC_TYPES[STAGE_TOPIC]))
+    assert chunk_compression(tmp_path / "raw") == {""}
+    stage = [(t, v) for s, t, v in bag_samples(tmp_path / "raw") if s == "stage"]
+    np.testing.assert_array_equal([t for t, _ in stage], run.stage_t)
+    np.testing.assert_array_equal([v for _, v in stage], run.stage_depth)
+
+
+def test_message_definitions_of_several_types_share_their_dependencies():
+    defs = message_definitions(["geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/JointState"])
+    assert sorted(defs) == ["builtin_interfaces/msg/Time", "geometry_msgs/msg/Point", "geometry_msgs/msg/Pose",
+                            "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/Quaternion",
+                            "sensor_msgs/msg/JointState", "std_msgs/msg/Header"]
+    assert all("MSG: " not in text for text in defs.values())

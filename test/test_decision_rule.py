@@ -1,0 +1,215 @@
+"""The missing-effect decision rule (``rheo_ros.diagnosis.decision``) on constructed fits:
+every threshold at and beside its boundary, the phases an effect is judged in, and the
+flattened verdict. Fast (no fitting): these are the tests mutation testing runs
+(``./tasks mutation``)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from rheo_ros.diagnosis import decision
+from rheo_ros.diagnosis.decision import (
+    BIC_DECISIVE,
+    EXCESS_EXPLAINED,
+    EXCESS_SIGMAS,
+    Candidate,
+    Diagnosis,
+    Verdict,
+    _excess,
+    _finite,
+    judge,
+)
+
+
+class Fit:
+    """What ``judge`` reads of a ``ModelFit``: the chi-square per phase, the BIC, the
+    estimate's values and std, the force RMS."""
+
+    def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0):
+        self.chi, self.bic, self.rmse_force = chi, bic, rmse
+        self.estimate = SimpleNamespace(params=params or {}, std=std or {})
+        self.asked: list[tuple[str, ...]] = []
+
+    def phase_chi2(self, phases):
+        self.asked.append(tuple(phases))
+        chi = sum(self.chi.get(p, (0.0, 0))[0] for p in phases)
+        return chi, sum(self.chi.get(p, (0.0, 0))[1] for p in phases)
+
+
+def pair(chi_before, chi_after, n=200, delta=-50.0, phase="keep", params=None, std=None, others=(0.0, 0)):
+    """A base fit and one with the effect: ``chi_*`` in ``phase`` over ``n`` readings,
+    ``others`` in every other phase (same for both), BIC lowered by ``-delta``."""
+    rest = {p: others for p in ("before", "pull", "keep", "release") if p != phase}
+    current = Fit({**rest, phase: (chi_before, n)}, bic=1000.0)
+    with_effect = Fit({**rest, phase: (chi_after, n)}, bic=1000.0 + delta, params=params, std=std, rmse=0.25)
+    return current, with_effect
+
+
+def test_excess_is_the_chi_square_over_its_expectation_in_its_stds():
+    assert _excess(120.0, 50) == pytest.approx(7.0)          # (120 - 50) / sqrt(100)
+    assert _excess(32.0, 50) == pytest.approx(-1.8)
+    assert _excess(7.0, 0) == 0.0                            # no readings: no excess
+
+
+def test_finite_keeps_numbers_and_drops_nan_and_inf():
+    assert _finite(2.5) == 2.5 and isinstance(_finite(np.float64(2.5)), float)
+    assert _finite(float("nan")) is None
+    assert _finite(float("inf")) is None and _finite(-np.inf) is None
+
+
+def test_a_clear_effect_is_significant_with_every_figure_of_its_candidate():
+    # keep: chi 400 over 200 readings (excess 200 / 20 = 10 std) -> 220 (excess 1 std).
+    params = {"E": 1.0, "relaxation_branch.stiffness": 3.0, "relaxation_branch.viscosity": 8.0}
+    std = {"E": 1e9, "relaxation_branch.stiffness": 0.3, "relaxation_branch.viscosity": 2.0}
+    current, with_effect = pair(400.0, 220.0, params=params, std=std)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.effect == "relaxation_branch" and c.fit is with_effect
+    assert c.delta_bic == -50.0 and c.rmse_after == 0.25
+    assert c.excess_before == pytest.approx(10.0) and c.excess_after == pytest.approx(1.0)
+    assert c.explained == pytest.approx(180.0 / 200.0)
+    assert c.significant is True and c.determined is True and c.eligible is True
+    assert c.note == ""
+    # The base parameters' std (1e9 here) is not the effect's business.
+    assert all(isinstance(v, float) for v in (c.delta_bic, c.rmse_after, c.excess_before, c.excess_after,
+                                               c.explained))
+
+
+def test_an_effect_is_judged_only_in_the_phases_it_shows_in():
+    # A huge misfit in the pull is no business of the keep's relaxation branch.
+    current, with_effect = pair(400.0, 220.0, others=(1e6, 200))
+    c = judge(current, with_effect, "relaxation_branch")
+    assert current.asked == [("keep",)] and with_effect.asked == [("keep",)]
+    assert c.excess_before == pytest.approx(10.0)
+    current, with_effect = pair(400.0, 220.0, phase="release")
+    assert judge(current, with_effect, "adhesion").excess_before == pytest.approx(10.0)
+    assert current.asked == [("release",)]
+
+
+def test_an_effect_that_names_no_phase_is_judged_over_every_phase(monkeypatch):
+    monkeypatch.setattr(decision, "effect_class", lambda effect_id: SimpleNamespace(shows_in=()))
+    current, with_effect = pair(400.0, 220.0)
+    judge(current, with_effect, "anything")
+    assert current.asked == [("before", "pull", "keep", "release")]
+
+
+@pytest.mark.parametrize("delta, significant", [(-BIC_DECISIVE - 0.01, True), (-BIC_DECISIVE, False),
+                                                (-BIC_DECISIVE + 0.01, False), (5.0, False)])
+def test_the_bic_must_drop_by_more_than_the_decisive_margin(delta, significant):
+    current, with_effect = pair(400.0, 220.0, delta=delta)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.significant is significant
+    assert c.delta_bic == pytest.approx(delta)
+
+
+@pytest.mark.parametrize("sigmas, significant", [(EXCESS_SIGMAS + 0.1, True), (EXCESS_SIGMAS, False),
+                                                 (EXCESS_SIGMAS - 0.1, False)])
+def test_the_base_model_must_misfit_where_the_effect_shows(sigmas, significant):
+    n = 200
+    chi_b = n + sigmas * np.sqrt(2.0 * n)
+    current, with_effect = pair(chi_b, n, n=n)          # the effect explains all of it
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.excess_before == pytest.approx(sigmas)
+    assert c.explained == pytest.approx(1.0)
+    assert c.significant is significant
+
+
+@pytest.mark.parametrize("share, significant", [(EXCESS_EXPLAINED, True), (EXCESS_EXPLAINED - 0.01, False),
+                                                (EXCESS_EXPLAINED + 0.01, True), (-0.5, False)])
+def test_the_effect_must_remove_enough_of_the_excess(share, significant):
+    # keep: 600 over 200 readings (excess 400); the effect removes ``share`` of it.
+    current, with_effect = pair(600.0, 600.0 - share * 400.0)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.explained == pytest.approx(share)
+    assert c.significant is significant
+
+
+def test_no_excess_explains_nothing_and_is_not_significant():
+    # The base fit is at the noise (chi = n): nothing to explain, no division by zero.
+    current, with_effect = pair(200.0, 150.0, delta=-100.0)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.explained == 0.0 and c.excess_before == 0.0
+    assert c.excess_after == pytest.approx(-2.5)
+    assert c.significant is False
+    # Below the noise (chi < n): likewise.
+    current, with_effect = pair(150.0, 100.0, delta=-100.0)
+    assert judge(current, with_effect, "relaxation_branch").explained == 0.0
+
+
+@pytest.mark.parametrize("std, determined", [(1.5, True), (3.0, True), (3.01, False), (np.inf, False),
+                                             (np.nan, False)])
+def test_an_effect_parameter_is_determined_within_its_own_value(std, determined):
+    params = {"E": 1.0, "relaxation_branch.stiffness": -3.0, "relaxation_branch.viscosity": 8.0}
+    stds = {"E": 0.1, "relaxation_branch.stiffness": std, "relaxation_branch.viscosity": 0.5}
+    current, with_effect = pair(400.0, 220.0, params=params, std=stds)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.determined is determined
+    assert c.significant is True
+    assert c.eligible is determined
+
+
+def test_only_the_effects_own_parameters_decide_determined():
+    # Another effect's loose parameter, and a base parameter's, do not count.
+    params = {"E": 1.0, "c2": 5.0, "adhesion.force": 2.0, "relaxation_branch.stiffness": 3.0,
+              "relaxation_branch_extra": 1.0}
+    std = {"E": 10.0, "c2": np.inf, "adhesion.force": np.inf, "relaxation_branch.stiffness": 1.0,
+           "relaxation_branch_extra": np.inf}
+    current, with_effect = pair(400.0, 220.0, params=params, std=std)
+    assert judge(current, with_effect, "relaxation_branch").determined is True
+    # And the effect's own loose parameter does.
+    current, with_effect = pair(400.0, 220.0, params=params, std=std, phase="release")
+    assert judge(current, with_effect, "adhesion").determined is False
+
+
+def test_eligible_needs_both_significant_and_determined():
+    base = dict(effect="x", fit=None, delta_bic=-20.0, rmse_after=1.0, excess_before=9.0, excess_after=1.0,
+                explained=0.9)
+    assert Candidate(**base, significant=True, determined=True).eligible is True
+    assert Candidate(**base, significant=True, determined=False).eligible is False
+    assert Candidate(**base, significant=False, determined=True).eligible is False
+
+
+def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8):
+    return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined)
+
+
+def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
+    cands = (candidate("relaxation_branch", -30.0), candidate("adhesion", np.inf, rmse=np.nan, explained=np.inf,
+                                                              determined=False))
+    d = Diagnosis("three_element", False, "relaxation_branch", cands, "the keep misfits", ("a", "b"))
+    assert d.to_json() == {
+        "adequate": False, "missing_effect": "relaxation_branch",
+        "candidates": [
+            {"effect": "relaxation_branch", "delta_bic": -30.0, "rmse_after": 1.0, "explained": 0.8,
+             "eligible": True},
+            {"effect": "adhesion", "delta_bic": None, "rmse_after": None, "explained": None, "eligible": False},
+        ],
+        "evidence": "the keep misfits", "undecided": ["a", "b"],
+    }
+    assert Diagnosis("m", True, None, (), "fine").undecided == ()
+
+
+def test_verdict_of_no_diagnosis_says_not_diagnosed():
+    v = Verdict.of([])
+    assert v == Verdict(None, (), (), (), "not diagnosed")
+
+
+def test_verdict_flattens_every_step_in_order():
+    first = Diagnosis("three_element", False, "relaxation_branch", (candidate("relaxation_branch", -30.0),),
+                      "step one.", ())
+    middle = Diagnosis("three_element+relaxation_branch", False, None, (candidate("adhesion", -12.0),),
+                       "step two.", ("adhesion", "sensor_drift"))
+    last = Diagnosis("three_element+relaxation_branch+adhesion", np.True_, "adhesion",
+                     (candidate("sensor_drift", 3.0),), "step three.", ("x",))
+    v = Verdict.of([first, middle, last])
+    assert v.adequate is True
+    assert v.missing_effects == ("relaxation_branch", "adhesion")
+    assert v.undecided == ("x",)
+    assert v.candidates == first.candidates
+    assert v.evidence == "step one. step two. step three."
+    one = Verdict.of([middle])
+    assert one.adequate is False and isinstance(one.adequate, bool)
+    assert one.missing_effects == () and one.undecided == ("adhesion", "sensor_drift")
+    assert one.candidates == middle.candidates and one.evidence == "step two."
