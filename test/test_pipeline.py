@@ -113,3 +113,4 @@ def test_with_discovery_the_node_names_what_rheo_analyze_names_on_a_cut_short_re
     assert online.adequate == report["diagnosis"]["adequate"]
     assert "cut short" in online.evidence
     np.testing.assert_allclose(online.rmse_force, [m["rmse_force"] for m in report["models"]], rtol=1e-6)
+

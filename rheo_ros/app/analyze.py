@@ -21,7 +21,7 @@ from rheo_ros.diagnosis.decision import Diagnosis
 from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
 from rheo_ros.identification.noise import sensor_noise
-from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts
+from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts, relaxation_unseen
 from rheo_ros.io.bag import bag_samples, read_params
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
@@ -147,7 +147,10 @@ def analyze(
     for warning in warnings:
         say(f"warning: {warning}")
     say("fitting three_element over the whole record")
-    fit = fit_from_starts(record, forward, fit_starts(record, closed, setup.estimator_config()), noise=noise)
+    starts = fit_starts(record, closed, setup.estimator_config())
+    fit = fit_from_starts(record, forward, starts, noise=noise)
+    _, fit = relaxation_unseen(record, fit, forward, starts)   # as the node: a flat c2 valley widens the rest
+    noise = noise.floored(fit.statistics.floor)   # the model's own resolution: never judged against zero
     models = [assess(record, forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)]
     for effect_id in effects:
         current = models[-1]

@@ -134,9 +134,12 @@ def _context(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: Senso
 
 def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effect: Effect,
                 noise: SensorNoise) -> float:
-    """The chi-square of ``current`` + ``effect`` as given (no fit); inf if it cannot be evaluated."""
+    """The chi-square of ``current`` + ``effect`` as given (no fit); inf if it cannot be
+    evaluated. Weighted as ``current``'s fit was: the sensor noise, or on a noise-free
+    record (no noise to weight by) the residuals' own levels."""
     model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
-    problem = WholeRecordProblem(record, model, noise.force_std, noise.marker_std, forward=forward,
+    stats = current.estimate.statistics
+    problem = WholeRecordProblem(record, model, stats.force_weights, stats.weights["markers"], forward=forward,
                                  live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std))
     tactile, marker = current.delays
     params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}

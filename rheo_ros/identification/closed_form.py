@@ -78,8 +78,12 @@ def _rate_search(residuals, rate0: float, n_linear: int) -> tuple[float, float]:
     """
     # MINPACK (lm): one unbounded variable, its loop in compiled code. A relative step of
     # 1e-10 in log(rate) is far below any rate's std; tighter only spends iterations on rounding.
-    fit = least_squares(lambda x: residuals(np.exp(x[0])), [np.log(rate0)], method="lm", xtol=1e-10, ftol=1e-12,
-                        gtol=1e-12)
+    # A trial step far out (data that hardly curve) overflows exp or flattens the decay
+    # to a constant (0 / 0 in the line fit): the solver steps back, and the caller judges
+    # the rate's std; no warning on stderr.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        fit = least_squares(lambda x: residuals(np.exp(x[0])), [np.log(rate0)], method="lm", xtol=1e-10,
+                            ftol=1e-12, gtol=1e-12)
     dof = max(fit.fun.size - n_linear - 1, 1)
     s2 = float(fit.fun @ fit.fun) / dof
     jtj = float(fit.jac[:, 0] @ fit.jac[:, 0])
@@ -211,6 +215,29 @@ def settled_displacement(record: Record, since: float) -> np.ndarray:
     return held_by_the_sensor(record.mesh, record.marker_displacement[last].mean(axis=0))
 
 
+def recovered_displacement(record: Record, t_free: float, voigt_time: float) -> np.ndarray:
+    """Marker displacements (N, 2) the release tends to, from a recovery not yet over.
+
+    Free of stress, the three-element model's strain recovers as ``u_inf + a e^(-t / tau)``
+    with ``tau = c1 / E`` (the Voigt element; the dashpot's share stays): each coordinate's
+    frames from ``t_free`` (s, the specimen off the stage) on are fitted so, at the given
+    ``tau``, and ``u_inf`` returned (the bottom row held: ``held_by_the_sensor``). Averaging
+    the last frames instead takes a recovery still under way for its end.
+
+    Raises:
+        RecordError: fewer than 3 frames after ``t_free``.
+    """
+    frames = record.marker_t >= t_free
+    if frames.sum() < 3:
+        raise RecordError(f"{record.source}: markers: {frames.sum()} frames after the release at {t_free:.3f} s, "
+                          "need 3 to follow the recovery")
+    t = record.marker_t[frames] - t_free
+    design = np.column_stack([np.ones_like(t), np.exp(-t / voigt_time)])
+    u = record.marker_displacement[frames]
+    coef = np.linalg.lstsq(design, u.reshape(t.size, -1), rcond=None)[0]
+    return held_by_the_sensor(record.mesh, coef[0].reshape(u.shape[1:]))
+
+
 def held_by_the_sensor(mesh: Mesh, u: np.ndarray) -> np.ndarray:
     """Marker displacements (N, 2) with what the sensor holds set to zero, as the model
     has it (not the noise those markers show): the bottom row's y, and its x where the
@@ -248,10 +275,11 @@ def lateral_strain_ratio(points: np.ndarray, u: np.ndarray) -> float:
     return float(-gradient[0, 0] / axial) if axial != 0 else float("nan")
 
 
-# Final displacements: the specimen has recovered (to e^-15 of its Voigt strain) 15
-# Voigt times c1/E after release; every frame from then on shows the same shape.
-SETTLED_VOIGT_TIMES = 15.0
+# The first pass of the final displacements: the last frames' average (s).
 MIN_FINAL_WINDOW = 2.0  # s
+# Passes of the recovery's extrapolation, each with the Voigt time of the one before
+# (the first from the last frames' average): the values settle to ~1e-6 in three.
+RECOVERY_PASSES = 3
 
 
 BASELINE_GUARD = 0.5      # s between a zero-force window and the pull or the stage's return
@@ -323,9 +351,11 @@ def from_final_displacement(
         guard: s left out of the fits at each phase boundary.
         final_window: s at the end of the record averaged for the final
             displacements. ``None``: a first pass on the last 2 s gives c1/E, then
-            every frame from 15 Voigt times after release on is averaged and the
-            equations are solved again (the paper reads one final frame; averaging
-            the recovered plateau divides the marker noise by the root of its frames).
+            every frame after the specimen left the stage is fitted by the model's
+            recovery and its end taken (``recovered_displacement``), and the equations
+            solved again, RECOVERY_PASSES times (the paper reads one final frame after
+            full recovery; following the recovery needs no full recovery and divides
+            the marker noise by the root of all the release's frames).
         forward: the converged forward model (``Setup.forward_model()``) for the force
             the markers' displacement implies; ``None``: the paper's ``J u`` on the
             marker grid (its own mesh: Tables II-IV).
@@ -345,12 +375,20 @@ def from_final_displacement(
     since = t_last - (MIN_FINAL_WINDOW if final_window is None else final_window)
     params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
                                             settled_displacement(record, since), forward)
+    final = f"final displacements averaged over {t_last - since:.3g} s"
     if final_window is None:
-        settled = profile.t_keep_end + SETTLED_VOIGT_TIMES * params["c1"] / params["E"]
-        if settled < since:
-            since = settled
+        # Follow the recovery to its end rather than average frames still recovering
+        # (exact for the model where the average leaves e^-(release / tau) of the Voigt
+        # strain), the Voigt time from the pass before: a fixed point, reached in a few.
+        for _ in range(RECOVERY_PASSES):
+            voigt = params["c1"] / params["E"]
+            if not (np.isfinite(voigt) and voigt > 0):
+                break
+            t_free = profile.t_keep_end + followed_stage_for(params, profile) + guard
             params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
-                                                    settled_displacement(record, since), forward)
+                                                    recovered_displacement(record, t_free, voigt), forward)
+            final = (f"final displacements extrapolated from {t_last - t_free:.3g} s of recovery "
+                     f"(Voigt time c1/E {params['c1'] / params['E']:.3g} s)")
     labels = [f"P{i + 1}" for i in nodes]
     eqs = ["eq.6", "eq.7", "eq.10"] if method == "long_time" else ["eq.6+14", "eq.7", "eq.15-17"]
     follow = followed_stage_for(params, profile)
@@ -367,7 +405,7 @@ def from_final_displacement(
         residual_rms={"force_fit": curves.residual_rms, "equations": rms, "rate_rel_std": curves.rate_rel_std,
                       "release_follow_s": follow},
         message=(f"keep force relaxed to {100 * relaxed:.3g} % of its start; nodes {','.join(labels)}; "
-                 f"final displacements averaged over {t_last - since:.3g} s{dropped_note(dropped)}{slow}{baseline}"
+                 f"{final}{dropped_note(dropped)}{slow}{baseline}"
                  f"{rate_note(curves.rate, curves.rate_rel_std)}"),
     )
 

@@ -105,6 +105,11 @@ class WholeRecordProblem:
         self._disp = self.record.markers - self.record.mesh.nodes[None]
 
     @property
+    def live_mask(self) -> np.ndarray:
+        """(T, nodes) the force readings fitted (away from the phase boundaries, live)."""
+        return self._live
+
+    @property
     def live_counts(self) -> np.ndarray:
         """(nodes,) force readings fitted per node."""
         return self._live.sum(axis=0)
@@ -171,9 +176,13 @@ class FitStatistics:
     Attributes:
         signals: the signals, ``P1``..``Pn`` (tactile segments, N) and ``markers`` (m).
         noise: the sensor noise the data show per signal (NaN: not known, a noise-free record).
+        floor: what no fit of this model can go below, per signal, whatever the sensor:
+            the forward model's discretisation (its predictions' move to the continuum,
+            from the meshes 2 and 4 times as fine; 0 when not computed) and the readings'
+            float32 resolution.
         weights: the noise the fit weighted each signal by (the noise, or estimated).
         residual_rms: unweighted residual RMS per signal (NaN: no live reading).
-        fit_to_noise: ``residual_rms / noise`` per signal (NaN where the noise is not known).
+        fit_to_noise: ``residual_rms / hypot(noise, floor)`` per signal (NaN where neither is known).
         samples: readings per signal.
         clock_offsets: stream (``tactile``, ``marker``) -> (offset, std) in s against the stage's stamps.
         discretisation: the mesh's systematic std per parameter (0 when not computed).
@@ -185,6 +194,7 @@ class FitStatistics:
 
     signals: tuple[str, ...]
     noise: dict[str, float]
+    floor: dict[str, float]
     weights: dict[str, float]
     residual_rms: dict[str, float]
     fit_to_noise: dict[str, float]
@@ -307,11 +317,13 @@ def _covariance(sol, pmap: ParameterMap, chi2: float) -> tuple[np.ndarray, np.nd
 
 
 def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], at_fit: np.ndarray, sol,
-                        loose: np.ndarray, slope: np.ndarray) -> np.ndarray:
+                        loose: np.ndarray, slope: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """The distance to the continuum as a systematic std per searched parameter: the
     parameters' shifts on meshes 2 and 4 times as fine (one Gauss-Newton step each from
     the fit, J dx = -(r_finer - r)), and the geometric tail beyond them at
-    DISCRETISATION_RATIO per halving."""
+    DISCRETISATION_RATIO per halving. Also the part of that distance in the predictions
+    the parameters cannot take up, per signal: (nodes,) N and the markers' m, RMS over the
+    readings (the model's floor: a misfit it leaves however the data were made)."""
     bounded = ~loose
     finer = problem.forward.finer()
     r = [at_fit, replace(problem, forward=finer).residuals(params),
@@ -319,7 +331,23 @@ def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], a
     dx = np.zeros((len(loose), 2))
     dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([r[1] - r[0], r[2] - r[1]]),
                                    rcond=None)[0]
-    return np.abs((dx[:, 0] + dx[:, 1] / (1.0 - DISCRETISATION_RATIO)) * slope)
+    std = np.abs((dx[:, 0] + dx[:, 1] / (1.0 - DISCRETISATION_RATIO)) * slope)
+    # The residuals' move to the continuum that no parameter change takes up (the rest is
+    # the parameters' shift above), unweighted: live force readings (row-major) first,
+    # then the markers.
+    move = (r[1] - r[0]) + (r[2] - r[1]) / (1.0 - DISCRETISATION_RATIO)
+    jac = sol.jac[:, bounded]
+    move = move - jac @ np.linalg.lstsq(jac, move, rcond=None)[0]
+    node = np.nonzero(problem.live_mask)[1]
+    nodes = problem.live_mask.shape[1]
+    force_move = move[:node.size] * np.broadcast_to(problem.force_std, (nodes,))[node]
+    # One level for every segment: how the projection spreads the move over the segments
+    # follows the fit's weights, not the mesh (a segment weighted heavily takes its move
+    # into the parameters and would claim a floor of almost nothing).
+    force_floor = np.full(nodes, float(np.sqrt(np.mean(force_move**2))) if force_move.size else 0.0)
+    marker_move = move[node.size:node.size + problem.marker_count] * problem.marker_std
+    marker_floor = float(np.sqrt(np.mean(marker_move**2))) if marker_move.size else 0.0
+    return std, force_floor, marker_floor
 
 
 def _reweighted(problem: WholeRecordProblem, residuals, unpack, pmap: ParameterMap, max_iterations: int | None,
@@ -405,11 +433,14 @@ def fit_record(
     cov[free[loose], free[loose]] = np.inf
     at_fit = problem.residuals(params)   # with the weights after the last pass
     sys_std = np.zeros(len(names))
+    # Float32 readings: half an ulp of the force per reading, a floor below any model's reach.
+    floor = (np.append(np.sqrt(np.mean(record.force**2, axis=0)), 0.0) * np.finfo(np.float32).eps / 2)
     if discretisation and (~loose).any():
-        sys_std = _discretisation_std(problem, params, at_fit, sol, loose, slope)
+        sys_std, force_floor, marker_floor = _discretisation_std(problem, params, at_fit, sol, loose, slope)
         cov[free, free] += np.where(loose, 0.0, sys_std**2)
+        floor = np.hypot(floor, np.append(force_floor, marker_floor))
     stats = _statistics(problem, noise, params, cov, all_names, names, dict(zip(names, sys_std.tolist())),
-                        at_fit, cost, dof, passes, sol.message)
+                        at_fit, cost, dof, passes, sol.message, floor)
     physical = [i for i, n in enumerate(all_names) if n not in DELAYS]
     edge = [n for n, flag in zip(names, loose) if flag]
     return Estimate(
@@ -424,7 +455,8 @@ def fit_record(
 
 def _statistics(problem: WholeRecordProblem, noise, params: dict[str, float], cov: np.ndarray,
                 all_names: tuple[str, ...], names: tuple[str, ...], systematic: dict[str, float],
-                at_fit: np.ndarray, cost: float, dof: int, passes: int, message: str) -> FitStatistics:
+                at_fit: np.ndarray, cost: float, dof: int, passes: int, message: str,
+                floor: np.ndarray) -> FitStatistics:
     cols = problem.record.mesh.cols
     signals = tuple(f"P{i + 1}" for i in range(cols)) + ("markers",)
     rf, rm = problem.group_rms(params)
@@ -436,15 +468,17 @@ def _statistics(problem: WholeRecordProblem, noise, params: dict[str, float], co
     # fit minimises (censored readings, the clocks' prior).
     deviance = float(np.sum(counts * 2.0 * np.log(sigma)) + at_fit @ at_fit)
     shown = np.append(noise.force_std, noise.marker_std)
-    # NaN where the data show no noise (a noise-free simulation): no misfit figure then.
+    # Against the noise and the floor together: a noise-free record is judged against what
+    # the model itself cannot resolve, not against zero (NaN where neither is known).
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.append(rf, rm) / shown
+        ratio = np.append(rf, rm) / np.hypot(np.nan_to_num(shown), floor)
     ratio = np.where(np.isfinite(ratio), ratio, np.nan)
     std = np.sqrt(np.diag(cov))
     offsets = {n.removesuffix("_delay"): (float(params[n]), float(std[all_names.index(n)]))
                for n in DELAYS if n in names}
     return FitStatistics(
-        signals=signals, noise=dict(zip(signals, shown.tolist())), weights=dict(zip(signals, sigma.tolist())),
+        signals=signals, noise=dict(zip(signals, shown.tolist())), floor=dict(zip(signals, floor.tolist())),
+        weights=dict(zip(signals, sigma.tolist())),
         residual_rms=dict(zip(signals, np.append(rf, rm).tolist())), fit_to_noise=dict(zip(signals, ratio.tolist())),
         samples=dict(zip(signals, counts.astype(int).tolist())), clock_offsets=offsets,
         discretisation={n: v for n, v in systematic.items() if n not in DELAYS}, cost=cost, deviance=deviance,

@@ -10,7 +10,7 @@ band, ``DeadBand``): the dead band's exact zeros would claim a noise-free sensor
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -71,6 +71,15 @@ class SensorNoise:
     @property
     def weights(self) -> Weights:
         return Weights(self.force_std, self.marker_std)
+
+    def floored(self, floor: dict[str, float]) -> SensorNoise:
+        """These levels with a fit's floor (``FitStatistics.floor``, by signal) added in
+        quadrature: what a model can be held to. A noise-free record's levels become the
+        model's own resolution, never zero."""
+        force_floor = np.array([floor[f"P{j + 1}"] for j in range(self.force_std.size)])
+        # NaN stays NaN: a segment with too few live readings shows no level to floor.
+        return replace(self, force_std=np.hypot(self.force_std, force_floor),
+                       marker_std=float(np.hypot(self.marker_std, floor["markers"])))
 
 
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

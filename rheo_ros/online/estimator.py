@@ -277,7 +277,7 @@ class PhaseIdentifier:
             RecordError: the job has no record.
         """
         rec = self._record(job)
-        noise = sensor_noise(rec)
+        noise = sensor_noise(rec).floored(fit.statistics.floor)   # as rheo analyze: never judged against zero
         base = assess(rec, self.forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)
         # One process: the node's fit lane is a worker already.
         models, verdicts = discover(rec, self.forward, base, noise=noise, workers=1)
