@@ -133,14 +133,24 @@ def main() -> int:
         "",
         *table,
         "",
-        "Surviving mutants (each: equivalent with why, or open):",
+        "Surviving mutants judged equivalent (with why):",
     ]
-    for module, name in survivors:
-        why = EQUIVALENT.get(name, "OPEN: not yet judged")
-        lines.append(f"  {name}: {why}")
+    judged = [(m, n) for m, n in survivors if n in EQUIVALENT]
+    for module, name in judged:
+        lines.append(f"  {name}: {EQUIVALENT[name]}")
         lines.append(f"      {show(name)}")
-    if not survivors:
+    if not judged:
         lines.append("  none")
+    # Open survivors by function (their diffs: `mutmut show NAME`, or `mutmut browse`): a
+    # list per mutant would run to hundreds of lines while most are still to be judged.
+    open_by_function: dict[str, int] = {}
+    for _, name in survivors:
+        if name not in EQUIVALENT:
+            function = name.rsplit("__mutmut_", 1)[0]
+            open_by_function[function] = open_by_function.get(function, 0) + 1
+    lines += ["", f"Open survivors (not yet judged or killed), by function: {sum(open_by_function.values())}"]
+    lines += [f"  {count:4d}  {function}" for function, count in
+              sorted(open_by_function.items(), key=lambda kv: (-kv[1], kv[0]))]
     Path(args.out).write_text("\n".join(lines) + "\n")
     print(f"mutation: written to {args.out}")
     return 0
