@@ -784,3 +784,14 @@ def test_pull_alone_on_chosen_nodes_names_its_source(short_case, plane_case):
     late = replace(rec, stage_profile=replace(rec.profile(), velocity=rec.profile().depth / 0.2), source="bagX")
     with pytest.raises(RecordError, match=r"^bagX: force: \d samples in the pull phase"):
         cf.from_pull(late)
+
+
+def test_a_floor_joins_the_noise_in_quadrature_and_an_unknown_level_stays_unknown():
+    noise = SensorNoise(np.array([3e-3, np.nan, 0.0]), np.ones((3, 3), bool), 0.0, np.array([10, 0, 10]), 30)
+    floored = noise.floored({"P1": 4e-3, "P2": 1e-3, "P3": 2e-5, "markers": 1e-6})
+    np.testing.assert_allclose(floored.force_std[[0, 2]], [5e-3, 2e-5], rtol=1e-12)
+    assert np.isnan(floored.force_std[1])          # no live readings: no level to floor
+    assert floored.marker_std == pytest.approx(1e-6, rel=1e-12)
+    assert not noise.known and not floored.known   # P2 still unknown
+    np.testing.assert_array_equal(floored.force_live, noise.force_live)
+    assert (floored.force_samples is noise.force_samples) and floored.marker_samples == 30
