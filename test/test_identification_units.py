@@ -795,3 +795,19 @@ def test_a_floor_joins_the_noise_in_quadrature_and_an_unknown_level_stays_unknow
     assert not noise.known and not floored.known   # P2 still unknown
     np.testing.assert_array_equal(floored.force_live, noise.force_live)
     assert (floored.force_samples is noise.force_samples) and floored.marker_samples == 30
+
+
+def test_a_release_too_short_to_follow_keeps_the_last_frames_average():
+    """Fewer than 3 marker frames after the let-go: the recovery cannot be followed, the
+    closed form stands on the first pass (the last frames' average) and says so, rather
+    than failing."""
+    from conftest import analytic_block_record
+
+    from rheo_ros.config.setup import Setup, check_params
+
+    setup = Setup(check_params({"geometry": "uniaxial", "material.gamma": 0.3}))
+    truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
+    est = cf.from_final_displacement(analytic_block_record(setup, truth, StageProfile(release_time=0.25)))
+    assert "final displacements averaged over 2 s" in est.message
+    longer = cf.from_final_displacement(analytic_block_record(setup, truth, StageProfile(release_time=5.0)))
+    assert "final displacements extrapolated from" in longer.message

@@ -385,6 +385,8 @@ def from_final_displacement(
             if not (np.isfinite(voigt) and voigt > 0):
                 break
             t_free = profile.t_keep_end + followed_stage_for(params, profile) + guard
+            if np.count_nonzero(record.marker_t >= t_free) < 3:
+                break   # a release too short to follow: the last frames' average stands
             params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
                                                     recovered_displacement(record, t_free, voigt), forward)
             final = (f"final displacements extrapolated from {t_last - t_free:.3g} s of recovery "
