@@ -9,7 +9,7 @@ import numpy as np
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
-from rheo_ros.sensors import DeadBand
+from rheo_ros.sensors import DeadBand, SensorReading
 
 
 class RecordError(ValueError):
@@ -28,7 +28,9 @@ class Record:
         source: where the data came from, for messages.
         stage_profile: the phases when already known (the online segmenter's, for a
             run still in progress); ``None``: read off the stage samples.
-        dead_band: where the tactile segments' readings are live (``None``: everywhere).
+        sensor: the sensor as the data show it (``sensors.read_sensor``): its dead band
+            says where the tactile segments' readings are live; ``None``: a noise-free
+            model record, live everywhere.
     """
 
     mesh: Mesh
@@ -40,7 +42,7 @@ class Record:
     markers: np.ndarray
     source: str = "<memory>"
     stage_profile: StageProfile | None = None
-    dead_band: DeadBand | None = None
+    sensor: SensorReading | None = None
 
     def __post_init__(self) -> None:
         checks = [
@@ -60,6 +62,11 @@ class Record:
         for name, a in (("stage", self.stage_depth), ("force", self.force), ("markers", self.markers)):
             if not np.all(np.isfinite(a)):
                 raise RecordError(f"{self.source}: {name}: non-finite values")
+
+    @property
+    def dead_band(self) -> DeadBand | None:
+        """Where the tactile segments' readings are live (``None``: everywhere)."""
+        return None if self.sensor is None else self.sensor.tactile.dead_band
 
     def reading(self, force: np.ndarray) -> np.ndarray:
         """What the tactile segments read of model forces (T, n) in N: through the dead

@@ -9,10 +9,15 @@ force read back from a segment is that node's force.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
+
+MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
+MAD_TO_STD = 1.4826    # of a Gaussian
+LINEAR = -math.inf     # the threshold of a cell with neither a dead band nor clipping at zero
 
 
 @dataclass(frozen=True)
@@ -27,6 +32,7 @@ class DeadBand:
 
     force: np.ndarray
     cells: np.ndarray
+    saturation: np.ndarray | float = math.inf   # N per segment: every cell at its largest reading
 
     def threshold(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the smallest live segment force, given each segment's noise std
@@ -35,9 +41,16 @@ class DeadBand:
         says the force was at most about this much."""
         return self.force + 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
 
+    def top(self, force_std: np.ndarray) -> np.ndarray:
+        """(nodes,) N: the largest live segment force, three cell stds below saturation in
+        every cell (inf without saturation). A reading above it says the force was at
+        least about this much."""
+        return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
+
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""
-        return np.asarray(force) >= self.threshold(force_std)
+        force = np.asarray(force)
+        return (force >= self.threshold(force_std)) & (force <= self.top(force_std))
 
     def reading(self, force: np.ndarray) -> np.ndarray:
         """What the segments read of noise-free forces (T, nodes) in N, to first order:
@@ -45,7 +58,7 @@ class DeadBand:
         A model compared with readings goes through it first: where the specimen has let
         go, a force sinking below the dead band reads zero, not its small true value."""
         force = np.asarray(force)
-        return np.where(force >= self.force, force, 0.0)
+        return np.minimum(np.where(force >= self.force, force, 0.0), self.saturation)
 
 
 @dataclass(frozen=True)
@@ -53,10 +66,11 @@ class TactileArray:
     """Cell grid ``rows`` (z) x ``cols`` (x) under a face ``width`` (x) by ``depth`` (z), in m.
 
     ``noise`` (Pa): Gaussian per cell; ``threshold`` (Pa): dead band, readings below
-    it are zero; ``resolution`` (Pa per count, 0 = none): ADC quantisation. The sensor
-    reads pressure only: tension reads as zero. Without a dead band, clipping the
-    noise at zero would leave an unloaded array reading ~noise/2.5 per cell, a
-    baseline that looks like drift.
+    it are zero (0: the noise clipped at zero; ``LINEAR``: neither, readings go
+    negative); ``resolution`` (Pa per count, 0 = none): ADC quantisation. The
+    simulator's sensor reads pressure only: tension reads as zero. Without a dead band,
+    clipping the noise at zero would leave an unloaded array reading ~noise/2.5 per
+    cell, a baseline that looks like drift.
     """
 
     rows: int = 6
@@ -67,6 +81,7 @@ class TactileArray:
     noise: float = 100.0
     resolution: float = 10.0
     threshold: float = 300.0
+    saturation: float = math.inf   # Pa: the largest reading a cell gives
 
     @cached_property
     def segment(self) -> np.ndarray:
@@ -88,9 +103,18 @@ class TactileArray:
         return np.bincount(self.segment, minlength=self.nodes)
 
     @cached_property
-    def dead_band(self) -> DeadBand:
+    def dead_band(self) -> DeadBand | None:
+        """Where the segments read their force plus zero-mean noise; None for a linear
+        cell (no dead band, no clipping: every reading is)."""
+        if self.threshold == LINEAR and self.saturation == math.inf:
+            return None
         cells = self.columns_per_segment * self.rows
-        return DeadBand(self.threshold * cells * self.cell_area, cells)
+        return DeadBand(self.threshold * cells * self.cell_area, cells, self.saturation * cells * self.cell_area)
+
+    @property
+    def cells_per_segment(self) -> np.ndarray:
+        """(nodes,) cells per segment."""
+        return self.columns_per_segment * self.rows
 
     @property
     def cell_area(self) -> float:
@@ -115,7 +139,7 @@ class TactileArray:
         p = np.where(p < self.threshold, 0.0, p)
         if self.resolution > 0:
             p = np.round(p / self.resolution) * self.resolution
-        return p.astype(np.float32)
+        return np.minimum(p, self.saturation).astype(np.float32)
 
     def nodal_forces(self, images: np.ndarray) -> np.ndarray:
         """Segment sums (T, nodes) in N from pressure images (T, rows, cols) in Pa."""
@@ -134,3 +158,228 @@ class MarkerCamera:
 
     def observe(self, positions: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         return positions + rng.standard_normal(positions.shape) * self.noise
+
+
+def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[float, int]:
+    """White-noise std of a smooth signal ``y`` (T, ...) along its first axis from its
+    second differences, counting only where three samples in a row are in ``use``
+    (T, ...). Returns the std (NaN when too few) and the differences counted.
+
+    A measured signal is a smooth response plus white noise; its second difference
+    ``y[i-1] - 2 y[i] + y[i+1]`` is noise with variance 6 sigma^2 plus the response's
+    curvature, which at the sensors' rates is far below the noise except at a phase's
+    corners. A robust scale (median absolute deviation) ignores those few corners."""
+    y = np.asarray(y, float)
+    d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
+    if use is not None:
+        d2 = d2[use[:-2] & use[1:-1] & use[2:]]
+    d2 = d2.ravel()
+    if d2.size < MIN_DIFFERENCES:
+        return float("nan"), int(d2.size)
+    mad = np.median(np.abs(d2 - np.median(d2)))
+    return float(MAD_TO_STD * mad / np.sqrt(6.0)), int(d2.size)
+
+
+MAX_DISTINCT = 1 << 16     # more distinct readings than this: no lattice to read (continuous)
+MIN_LATTICE = 50           # distinct readings a quantisation step is read from
+MARKER_RESOLUTION = 1e-9   # m: a marker noise below this is numerical (a noise-free record)
+NOISE_AGREES = 1.5         # a stated noise within this factor of the data's agrees with them
+
+
+@dataclass
+class TactileReadout:
+    """What a tactile array's readings show of its cells, gathered frame by frame.
+
+    Every fact is a count, an extreme or a set, so the same frames give the same facts
+    however they are grouped (the node adds one frame at a time, a whole bag adds them
+    all: one computation). ``distinct`` holds the distinct non-zero readings while there
+    are at most ``MAX_DISTINCT`` (quantised readings have few; continuous ones overflow
+    it and are dropped: ``overflow``).
+    """
+
+    readings: int = 0
+    zeros: int = 0
+    negatives: int = 0
+    smallest_positive: float = math.inf
+    largest: float = -math.inf
+    at_largest: int = 0        # frames in which some cell reads ``largest``
+    distinct: np.ndarray = field(default_factory=lambda: np.empty(0))
+    overflow: bool = False
+
+    def add(self, images: np.ndarray) -> None:
+        """Frames (..., rows, cols) of readings in Pa."""
+        images = np.asarray(images, float)
+        v = images.ravel()
+        if v.size == 0:
+            return
+        self.readings += v.size
+        self.zeros += int(np.count_nonzero(v == 0.0))
+        self.negatives += int(np.count_nonzero(v < 0.0))
+        positive = v[v > 0.0]
+        if positive.size:
+            self.smallest_positive = min(self.smallest_positive, float(positive.min()))
+        top = float(v.max())
+        if top > self.largest:
+            self.largest, self.at_largest = top, 0
+        if top == self.largest:
+            frames = images.reshape(-1, images.shape[-2] * images.shape[-1])
+            self.at_largest += int(np.count_nonzero((frames == top).any(axis=1)))
+        if not self.overflow:
+            self.distinct = np.union1d(self.distinct, v[v != 0.0])
+            if self.distinct.size > MAX_DISTINCT:
+                self.overflow, self.distinct = True, np.empty(0)
+
+    @property
+    def resolution(self) -> float | None:
+        """The quantisation step (Pa) the readings sit on, 0 for continuous readings, None
+        when too few distinct readings show either way. The step is the smallest gap
+        between distinct readings, kept only when every reading is a whole number of
+        steps (to float32's precision)."""
+        if self.overflow:
+            return 0.0
+        v = self.distinct
+        if v.size < MIN_LATTICE:
+            return None
+        step = float(np.diff(v).min())
+        tolerance = np.maximum(1e-3 * step, 4.0 * np.finfo(np.float32).eps * np.abs(v))
+        on_lattice = np.abs(v - np.round(v / step) * step) <= tolerance
+        resolvable = step > 16.0 * np.finfo(np.float32).eps * float(np.abs(v).max())
+        return step if resolvable and bool(on_lattice.all()) else 0.0
+
+
+@dataclass(frozen=True)
+class SensorReading:
+    """The tactile array and camera as the data show them, what they rest on, and where
+    they contradict the parameters.
+
+    Attributes:
+        tactile: the array with the threshold and resolution the readings show (the
+            parameters' where the readings cannot tell) and the cell noise they show.
+        marker_noise: m per coordinate (NaN: not shown).
+        source: per field (``tactile.threshold``, ``tactile.resolution``,
+            ``tactile.noise``, ``markers.noise``) whether it came from the ``data`` or
+            the ``parameters``.
+        warnings: one line per stated value the data contradict.
+    """
+
+    tactile: TactileArray
+    marker_noise: float
+    source: dict[str, str]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def law(self) -> str:
+        """The cell's law in words."""
+        t = self.tactile.threshold
+        band = ("linear (no dead band, no clipping)" if t == LINEAR else
+                "noise clipped at zero, no dead band" if t == 0 else f"dead band {t:g} Pa")
+        steps = f", {self.tactile.resolution:g} Pa steps" if self.tactile.resolution > 0 else ", continuous"
+        top = f", saturates at {self.tactile.saturation:g} Pa" if np.isfinite(self.tactile.saturation) else ""
+        return band + steps + top
+
+    def to_json(self) -> dict:
+        t = self.tactile
+        return {
+            "law": self.law,
+            "tactile": {"threshold": None if t.threshold == LINEAR else t.threshold,
+                        "clipped_at_zero": t.threshold == 0.0, "resolution": t.resolution,
+                        "noise": _finite(t.noise), "saturation": _finite(t.saturation)},
+            "markers": {"noise": _finite(self.marker_noise)},
+            "source": dict(self.source),
+            "warnings": list(self.warnings),
+        }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
+
+
+def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarray, marker_std: float,
+                stated_marker_noise: float, given: frozenset[str] = frozenset()) -> SensorReading:
+    """The sensor as the readings show it, against the parameters ``stated``.
+
+    The data decide wherever they can. Saturation: the largest reading met in many
+    frames (a smooth load passes its peak once). The cell noise: the segments' second
+    differences (``forces`` (T, nodes) N) over readings clear of zero and of
+    saturation, in two passes (the first sets the margin). A reading below zero means a
+    linear cell; exact zeros beside positive readings down to about half a cell noise
+    (or one step) mean the noise clipped at zero; no reading between zero and a level
+    well above that means a dead band there (on noise-free readings a gap is the load's
+    own, so the parameters' band is kept where it is lower). The quantisation step is
+    the readings' lattice. A value in ``given`` (stated by the parameters file) that the
+    data contradict gets a warning naming the field, both values and what the data
+    show; the data's value is used all the same.
+    """
+    warnings: list[str] = []
+    source = dict.fromkeys(("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise"), "data")
+    cells = stated.columns_per_segment * stated.rows
+    to_cell = np.sqrt(cells) * stated.cell_area   # a segment's force std per cell std (Pa -> N)
+
+    frames = readout.readings / (stated.rows * stated.cols)
+    saturation = math.inf
+    if readout.largest > 0 and readout.at_largest >= max(10, 0.01 * frames):
+        saturation = readout.largest
+    unsaturated = forces < 0.9 * saturation * cells * stated.cell_area
+
+    def cell_noise(floor: np.ndarray | None) -> float:
+        use = unsaturated if floor is None else unsaturated & (forces > floor)
+        seg = np.array([difference_noise(forces[:, j], use[:, j])[0] for j in range(forces.shape[1])]) / to_cell
+        return float(np.nanmedian(seg)) if np.isfinite(seg).any() else math.nan
+
+    resolution = readout.resolution
+    if resolution is None:
+        resolution, source["tactile.resolution"] = stated.resolution, "parameters"
+    elif "tactile.resolution" in given and not math.isclose(resolution, stated.resolution, rel_tol=1e-3):
+        warnings.append(f"tactile.resolution: the parameters say {stated.resolution:g} Pa per count, the readings "
+                        f"show {'continuous values' if resolution == 0 else f'{resolution:g} Pa steps'}")
+
+    noise = cell_noise(None if readout.negatives else np.zeros(forces.shape[1]))
+    # Below this a cell's noise is numerical, not a sensor's: 14 bits of the largest reading.
+    noise_free = not noise > 1e-4 * max(readout.largest, 0.0)
+    low = readout.smallest_positive
+    if readout.negatives:
+        threshold, shown = LINEAR, f"{readout.negatives} readings below zero"
+    elif readout.zeros and np.isfinite(low):
+        clipped = low <= max(1.5 * resolution, 0.5 * (0.0 if noise_free else noise))
+        threshold = 0.0 if clipped else low
+        shown = (f"readings from {low:.3g} Pa up beside exact zeros" if clipped else
+                 f"no reading between 0 and {low:g} Pa")
+        if noise_free and not clipped and stated.threshold < low:
+            threshold, source["tactile.threshold"] = stated.threshold, "parameters"
+    else:
+        threshold, shown, source["tactile.threshold"] = stated.threshold, "", "parameters"
+    if "tactile.threshold" in given and source["tactile.threshold"] == "data":
+        inside = np.isfinite(low) and low < stated.threshold - max(resolution, 1e-9 * stated.threshold)
+        if threshold == LINEAR or inside or (threshold == 0.0 and stated.threshold > 0):
+            warnings.append(f"tactile.threshold: the parameters say a dead band of {stated.threshold:g} Pa, the "
+                            f"readings show {shown}")
+
+    if np.isfinite(noise) and threshold != LINEAR:   # again over the readings clear of the dead band
+        again = cell_noise((max(threshold, 0.0) + 3.0 * noise) * cells * stated.cell_area)
+        noise = again if np.isfinite(again) else noise
+    if noise_free:
+        noise = 0.0
+    if np.isfinite(noise):
+        if "tactile.noise" in given and not _agrees(stated.noise, noise):
+            warnings.append(f"tactile.noise: the parameters say {stated.noise:g} Pa per cell, the readings show "
+                            f"{noise:.3g} Pa")
+    else:
+        noise, source["tactile.noise"] = stated.noise, "parameters"
+    if marker_std < MARKER_RESOLUTION:
+        marker_std = 0.0   # numerical: no camera resolves a nanometre
+    if np.isfinite(marker_std):
+        if "markers.noise" in given and not _agrees(stated_marker_noise, marker_std):
+            warnings.append(f"markers.noise: the parameters say {stated_marker_noise:g} m, the markers show "
+                            f"{marker_std:.3g} m")
+    else:
+        marker_std, source["markers.noise"] = stated_marker_noise, "parameters"
+    tactile = replace(stated, threshold=threshold, resolution=float(resolution), noise=float(noise),
+                      saturation=saturation)
+    return SensorReading(tactile, float(marker_std), source, tuple(warnings))
+
+
+def _agrees(stated: float, shown: float) -> bool:
+    """A stated noise agrees with the data's within ``NOISE_AGREES`` (zero only with zero)."""
+    if stated == 0 or shown == 0:
+        return stated == shown
+    return 1.0 / NOISE_AGREES <= stated / shown <= NOISE_AGREES

@@ -26,10 +26,11 @@ from rheo_ros.diagnosis.decision import (
 
 class Fit:
     """What ``judge`` reads of a ``ModelFit``: the chi-square per phase, the BIC, the
-    estimate's values and std, the force RMS."""
+    estimate's values and std, the force RMS, the effects' forms."""
 
-    def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0):
-        self.chi, self.bic, self.rmse_force = chi, bic, rmse
+    def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
+                 forms=None):
+        self.chi, self.bic, self.rmse_force, self.forms = chi, bic, rmse, forms or {}
         self.estimate = SimpleNamespace(params=params or {}, std=std or {})
         self.asked: list[tuple[str, ...]] = []
 
@@ -88,11 +89,61 @@ def test_an_effect_is_judged_only_in_the_phases_it_shows_in():
     assert current.asked == [("release",)]
 
 
+def test_the_form_fitted_decides_where_the_effect_is_judged():
+    """A form of a family is judged in its own phases, and the candidate names it."""
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    from rheo_ros.models import effects
+
+    @dataclass(frozen=True)
+    class PullAdhesion(effects.Effect):
+        id: ClassVar[str] = "adhesion"
+        form: ClassVar[str] = "pull_test"
+        shows_in: ClassVar[tuple[str, ...]] = ("pull",)
+
+    effects.register_effect(PullAdhesion)
+    try:
+        current, with_effect = pair(400.0, 220.0, phase="pull")
+        with_effect.forms = {"adhesion": "pull_test"}
+        c = judge(current, with_effect, "adhesion")
+        assert current.asked == [("pull",)] and c.form == "pull_test" and c.significant
+        with_effect.forms = {"adhesion": "fading"}
+        assert judge(current, with_effect, "adhesion").form == "fading"
+    finally:
+        effects._REGISTRY["adhesion"].pop("pull_test")
+
+
 def test_an_effect_that_names_no_phase_is_judged_over_every_phase(monkeypatch):
-    monkeypatch.setattr(decision, "effect_class", lambda effect_id: SimpleNamespace(shows_in=()))
+    monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(shows_in=(), form=""))
     current, with_effect = pair(400.0, 220.0)
     judge(current, with_effect, "anything")
-    assert current.asked == [("before", "pull", "keep", "release")]
+    # All together, then each on its own (the footprint).
+    assert current.asked == [("before", "pull", "keep", "release"), ("before",), ("pull",), ("keep",), ("release",)]
+
+
+def test_an_effect_must_explain_each_phase_of_its_footprint():
+    """A drift (four phases) that removes 56 % of the pooled excess by fitting the pull's
+    misfit while leaving the keep's (a stiffening's curve taken for a settling baseline):
+    not significant; the footprint says where it fails. In each phase: 200 readings,
+    chi-square excess in sd = (chi - 200) / 20."""
+    def fits(pull, keep, release):
+        chi = {"before": (200.0, 200), "pull": (pull[0], 200), "keep": (keep[0], 200), "release": (release[0], 200)}
+        after = {"before": (200.0, 200), "pull": (pull[1], 200), "keep": (keep[1], 200), "release": (release[1], 200)}
+        return Fit(chi, bic=1000.0), Fit(after, bic=900.0)
+
+    current, with_effect = fits(pull=(3000.0, 1100.0), keep=(800.0, 800.0), release=(200.0, 200.0))
+    c = judge(current, with_effect, "sensor_drift")
+    assert c.explained == pytest.approx(1900.0 / 3400.0) and c.explained >= EXCESS_EXPLAINED
+    assert c.footprint == {"pull": pytest.approx(1900.0 / 2800.0), "keep": 0.0} and not c.significant
+    # Explaining each misfitting phase by half is enough.
+    current, with_effect = fits(pull=(3000.0, 1500.0), keep=(800.0, 500.0), release=(200.0, 200.0))
+    c = judge(current, with_effect, "sensor_drift")
+    assert c.footprint == {"pull": pytest.approx(1500.0 / 2800.0), "keep": 0.5} and c.significant
+    # Making a clean phase misfit (release: 0 -> 10 sd) disqualifies it whatever else it explains.
+    current, with_effect = fits(pull=(3000.0, 200.0), keep=(800.0, 200.0), release=(200.0, 400.0))
+    c = judge(current, with_effect, "sensor_drift")
+    assert c.footprint["release"] == -np.inf and not c.significant
 
 
 @pytest.mark.parametrize("delta, significant", [(-BIC_DECISIVE - 0.01, True), (-BIC_DECISIVE, False),
@@ -171,8 +222,8 @@ def test_eligible_needs_both_significant_and_determined():
     assert Candidate(**base, significant=False, determined=True).eligible is False
 
 
-def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8):
-    return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined)
+def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8, form="f"):
+    return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined, form=form)
 
 
 def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
@@ -182,9 +233,10 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
     assert d.to_json() == {
         "adequate": False, "missing_effect": "relaxation_branch",
         "candidates": [
-            {"effect": "relaxation_branch", "delta_bic": -30.0, "rmse_after": 1.0, "explained": 0.8,
+            {"effect": "relaxation_branch", "form": "f", "delta_bic": -30.0, "rmse_after": 1.0, "explained": 0.8,
              "eligible": True},
-            {"effect": "adhesion", "delta_bic": None, "rmse_after": None, "explained": None, "eligible": False},
+            {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
+             "eligible": False},
         ],
         "evidence": "the keep misfits", "undecided": ["a", "b"],
     }

@@ -705,14 +705,19 @@ def test_force_noise_per_segment_and_the_markers(short_case):
 
 
 def test_force_noise_counts_only_live_readings(short_case):
-    from rheo_ros.sensors import DeadBand
+    from rheo_ros.sensors import SensorReading, TactileArray
 
-    rec = noisy(short_case.record, force_std=0.02)
-    band = DeadBand(force=0.3 * np.abs(short_case.record.force).max(axis=0), cells=np.ones(5))
-    std, live, counts = force_noise(replace(rec, dead_band=band))
+    rec = noisy(short_case.record, force_std=0.002)
+    tactile = TactileArray(width=1.0, depth=1.0, nodes=rec.mesh.cols)   # the 1 m block's face
+    # A dead band at 30 % of the most loaded cell's peak pressure (of the least loaded segment).
+    cells = tactile.columns_per_segment * tactile.rows
+    threshold = 0.3 * float(np.min(np.abs(rec.force).max(axis=0) / (cells * tactile.cell_area)))
+    sensor = SensorReading(replace(tactile, threshold=threshold), 1e-4, {})
+    band = sensor.tactile.dead_band
+    std, live, counts = force_noise(replace(rec, sensor=sensor))
     assert not live.all() and live.any()
     assert np.all((counts > 10) & (counts < rec.force.shape[0] - 2))
-    assert np.all((std > 0.005) & (std < 0.04))
+    assert np.all((std > 0.0005) & (std < 0.004))
     # Live where the reading clears the threshold the noise found sets.
     np.testing.assert_array_equal(live, band.live(rec.force, std))
 

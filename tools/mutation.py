@@ -28,6 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 # Surviving mutants judged equivalent (no test can tell them from the original), with why.
 # Keys are mutmut's mutant names.
 _MSGDEF = "rheo_ros.io.bag.x_message_definitions__mutmut_"
+_FIT = "rheo_ros.identification.fit."
+_PL = "rheo_ros.identification.pipeline."
 EQUIVALENT: dict[str, str] = {
     # bag.message_definitions: rosbags names a used type "pkg/Name" on its "MSG: " line (no "/msg/",
     # one "/"), and generates the same text for any ros_version but 1.
@@ -39,6 +41,45 @@ EQUIVALENT: dict[str, str] = {
     "rheo_ros.identification.pipeline.x_undetermined__mutmut_30":
         "equivalent: '2 / rate <= 1e5' differs from '< 1e5' only where 2 / rate is exactly 1e5 in floating "
         "point, which no E / (c1 + c2) of round numbers gives (2 / (1 / 5e4) = 99999.99999999999)",
+    # identification.fit
+    **{f"{_FIT}x_fit_record__mutmut_{n}": "equivalent: a loose parameter's variance is already inf; what is "
+                                            "added to it (0, 1 or its zero shift) leaves it inf" for n in (198, 204)},
+    f"{_FIT}x__discretisation_std__mutmut_19": "equivalent: both Gauss-Newton shifts change sign inside abs()",
+    **{f"{_FIT}x__discretisation_std__mutmut_{n}": "equivalent: rcond=None is numpy's default (numpy >= 2)"
+       for n in (24, 60)},
+    f"{_FIT}x__discretisation_std__mutmut_26": "equivalent at a converged fit: the residuals there are orthogonal "
+                                                 "to J's columns (normal equations), so lstsq(J, r1 + r0) = "
+                                                 "lstsq(J, r1 - r0) to the solver's tolerance",
+    **{f"{_FIT}x__discretisation_std__mutmut_{n}": "equivalent: a Record has >= 2 marker frames of >= 4 "
+                                                    "markers, so the markers' move is never empty" for n in (91, 97)},
+    f"{_FIT}x__reweighted__mutmut_53": "equivalent: '<=' and '<' differ only where a relative weight change is "
+                                       "exactly 0.02 in floating point",
+    f"{_FIT}x__covariance__mutmut_10": "equivalent: '<=' and '<' differ only where a column norm is exactly "
+                                       "1e-12 of the largest in floating point",
+    **{f"{_FIT}x__statistics__mutmut_{n}": "equivalent: np.errstate(invalid=...) only silences a 0/0 warning; "
+                                            "the ratio is the same NaN" for n in (40, 42)},
+    **{f"{_FIT}x_cramer_rao_std__mutmut_{n}": "equivalent: the parameters are floats; np.array infers float64"
+       for n in (4, 6)},
+    **{f"{_FIT}x_cramer_rao_std__mutmut_{n}": "equivalent: numpy reads any negative reshape size as the one "
+                                               "inferred" for n in (31, 53)},
+    f"{_FIT}x_cramer_rao_std__mutmut_39": "equivalent: stepping p - scale dx negates J; J^T J is unchanged",
+    f"{_FIT}x_cramer_rao_std__mutmut_50": "equivalent: each column is 1-D, so stacking on axis 1 is stacking on -1",
+    f"{_FIT}x_cramer_rao_std__mutmut_18": "equivalent: the scale cancels in inv(J^T J) * outer(scale, scale) (J "
+                                          "is taken in units of it); only the difference steps change, and the "
+                                          "adaptive differences agree to 1e-5",
+    **{f"{_FIT}xǁParameterMapǁ__init____mutmut_{n}": "equivalent: p0 only enters float arithmetic (exp, logit, "
+                                                      "division), so an int array gives the same values"
+       for n in (4, 6)},
+    f"{_FIT}xǁParameterMapǁvalues__mutmut_30": "equivalent: the where() only guards exp() for the entries "
+                                               "np.select takes from the other branches",
+    f"{_FIT}xǁWholeRecordProblemǁ__post_init____mutmut_31": "equivalent: each marker's start is profiled out "
+                                                            "(residuals and group_rms subtract its mean over the "
+                                                            "frames), so + nodes and - nodes cancel",
+    # identification.pipeline
+    **{f"{_PL}x_fit_from_starts__mutmut_{n}": "equivalent: fit_record reads only the start's params, never its "
+                                              "method or equations" for n in (22, 23, 28, 29, 49, 50, 54, 55)},
+    **{f"{_PL}x_fit_from_starts__mutmut_{n}": "equivalent: discretisation=True is fit_record's default"
+       for n in (41, 99)},
     "rheo_ros.online.segmenter.xǁPhaseSegmenterǁclose_release__mutmut_1":
         "equivalent: state 'release' and a pending release are set together (_stage_keep) and cleared "
         "together (_end_release), so 'or' and 'and' agree",
@@ -127,8 +168,9 @@ def main() -> int:
         f"date {date.today().isoformat()}, commit {commit} (+ the working tree), "
         f"wall time {'%.0f s' % wall if wall is not None else 'not measured (--no-run)'}, "
         f"--max-children {args.max_children}, on a shared 2-core machine ({os.cpu_count()} CPUs seen)",
-        "Tests: test/test_decision_rule.py, test_identification_units.py, test_segmenter_units.py, "
-        "test_bag_reader_units.py (mutmut runs, per mutant, those of them that reach its function).",
+        "Tests: test/test_decision_rule.py, test_identification_units.py, test_fit_units.py, "
+        "test_pipeline_units.py, test_segmenter_units.py, test_bag_reader_units.py (mutmut runs, per mutant, "
+        "those of them that reach its function).",
         "Score = (killed + timeout) / (total - not run); a mutant no test reaches counts against it.",
         "",
         *table,

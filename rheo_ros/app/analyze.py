@@ -109,7 +109,8 @@ def analyze(
 
     Args:
         bag: a rosbag2 directory of the contract.
-        effects: effect ids to add to the base model, in order (``--add``).
+        effects: effect ids to add to the base model, in order (``--add``; ``id:form`` for a
+            form other than the family's default).
         params_file: parameters overriding the bag's own (``--params-file``).
         discover_effects: run the diagnosis loop after the user's effects.
         candidates: effect ids the diagnosis may try (default: the whole catalogue).
@@ -123,8 +124,8 @@ def analyze(
         ParamsError: a bad parameters file.
         KeyError: an unknown effect id.
     """
-    for effect_id in effects:
-        effect_class(effect_id)  # an unknown id fails before any work
+    for effect in effects:
+        effect_class(*effect.split(":", 1))  # an unknown id or form fails before any work
     say = progress or (lambda _: None)
     params = bag_params(bag, params_file)
     setup = Setup(params)
@@ -136,7 +137,7 @@ def analyze(
     record = replace(job.record, source=str(bag))
     forward = setup.forward_model()
     noise = sensor_noise(record)
-    warnings = [w for w in (job.warning(),) if w]
+    warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
     if len(releases) > 1:
         warnings.append(f"{len(releases)} pushes in the bag: push 1 analysed (t {job.event.t_start:.2f} s to "
                         f"{job.event.t_end:.2f} s)")
@@ -152,10 +153,12 @@ def analyze(
     _, fit = relaxation_unseen(record, fit, forward, starts)   # as the node: a flat c2 valley widens the rest
     noise = noise.floored(fit.statistics.floor)   # the model's own resolution: never judged against zero
     models = [assess(record, forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)]
-    for effect_id in effects:
+    for effect in effects:
         current = models[-1]
-        say(f"fitting {current.name}+{effect_id}")
-        models.append(polish(record, forward, add_effect(record, forward, current, effect_id, noise), noise))
+        effect_id, _, form = effect.partition(":")
+        say(f"fitting {current.name}+{effect}")
+        models.append(polish(record, forward, add_effect(record, forward, current, effect_id, noise, form or None),
+                             noise))
     diagnoses: list[Diagnosis] = []
     if discover_effects:
         found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say, workers=workers)

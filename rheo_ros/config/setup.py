@@ -27,7 +27,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import Element, three_element
 from rheo_ros.record import Record
-from rheo_ros.sensors import MarkerCamera, TactileArray
+from rheo_ros.sensors import MarkerCamera, SensorReading, TactileArray, TactileReadout, difference_noise, read_sensor
 
 FORWARD_MODELS_KEPT = 4
 _FORWARD_MODELS: dict[tuple, QuasiStaticFE] = {}   # Setup.forward_model's, by geometry
@@ -230,15 +230,27 @@ class Setup:
     def record(self, stage_t: np.ndarray, stage_depth: np.ndarray, tactile_t: np.ndarray, images: np.ndarray,
                marker_t: np.ndarray, markers: np.ndarray, source: str = "<memory>") -> Record:
         """The ``Record`` of these sensor outputs: tactile images (T, rows, cols) in Pa
-        summed into segment forces, with the array's dead band.
+        summed into segment forces, with the sensor the images show (``sensor``).
 
         Raises:
             RecordError: the samples do not make a record (names the field).
         """
-        tactile = self.tactile
+        readout = TactileReadout()
+        readout.add(images)
+        forces = self.tactile.nodal_forces(images)
         return Record(mesh=self.mesh, stage_t=stage_t, stage_depth=stage_depth, force_t=tactile_t,
-                      force=tactile.nodal_forces(images), marker_t=marker_t, markers=markers, source=source,
-                      dead_band=tactile.dead_band)
+                      force=forces, marker_t=marker_t, markers=markers, source=source,
+                      sensor=self.sensor(readout, forces, markers))
+
+    def sensor(self, readout: TactileReadout, forces: np.ndarray, markers: np.ndarray) -> SensorReading:
+        """The sensor as these readings show it (``sensors.read_sensor``): the tactile
+        readings' ``readout``, the segment forces (T, nodes) in N and the marker frames
+        (T, N, 2) they came with. A parameter counts as stated when it differs from its
+        default (a ROS node cannot tell a default from a value set to it)."""
+        given = frozenset(k for k in ("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise")
+                          if self.params[k] != DEFAULTS[k])
+        marker_std = difference_noise(markers)[0] if len(markers) else float("nan")
+        return read_sensor(self.tactile, readout, forces, marker_std, self.params["markers.noise"], given)
 
     @property
     def camera(self) -> MarkerCamera:
@@ -258,12 +270,12 @@ class Setup:
     def effects(self) -> tuple[Effect, ...]:
         out = []
         for effect_id in self.effect_ids:
-            cls = effect_class(effect_id)
             prefix = f"effects.{effect_id}."
             values = {k[len(prefix):]: v for k, v in self.params.items() if k.startswith(prefix)}
+            form = values.pop("form", None)   # effects.<id>.form: one of the family's forms (default: its first)
             try:
-                out.append(cls(**values))
-            except TypeError as exc:
+                out.append(effect_class(effect_id, form)(**values))
+            except (TypeError, KeyError) as exc:
                 raise ParamsError(f"effects.{effect_id}: {exc}") from None
         return tuple(out)
 

@@ -99,6 +99,7 @@ class Analysis:
                 "equations": list(self.closed_form.equations),
                 "message": self.closed_form.message,
             },
+            "sensor": self.record.sensor.to_json() if self.record.sensor else None,
             "models": [self._model_json(m) for m in self.models],
             "diagnosis": diagnosis,
             "warnings": list(self.warnings),
@@ -108,7 +109,7 @@ class Analysis:
     def _model_json(m: ModelFit) -> dict[str, Any]:
         std = m.estimate.std
         return {
-            "name": m.name, "effects": list(m.effects),
+            "name": m.name, "effects": list(m.effects), "forms": m.forms,
             "params": {k: float(v) for k, v in m.estimate.params.items()},
             "std": {k: _finite(v) for k, v in std.items()},
             "rmse_force": m.rmse_force, "rmse_by_phase": m.rmse_by_phase, "bic": m.bic,

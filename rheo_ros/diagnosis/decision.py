@@ -11,7 +11,9 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
 2. the base model misfits where the effect shows (``Effect.shows_in``): the phase's
    chi-square over its readings exceeds what noise gives by ``EXCESS_SIGMAS``
    standard deviations;
-3. adding it removes at least ``EXCESS_EXPLAINED`` of that excess;
+3. adding it removes at least ``EXCESS_EXPLAINED`` of that excess, over those phases
+   together and in each of them that misfit (its footprint: an effect that fits the
+   pull's curve by making the keep worse, or a clean phase misfit, is not that effect);
 4. the data pin its parameters down (``pipeline.is_determined``).
 
 (2) and (3) keep a small systematic error elsewhere (the sensors' quirks, a mesh
@@ -25,7 +27,7 @@ diagnosis says so and names the experiments that would.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -54,9 +56,13 @@ class Candidate:
         excess_before, excess_after: chi-square excess over the noise in the phases
             it shows in, without and with it (in standard deviations of that chi-square).
         explained: the share of that excess it removes.
+        footprint: that share in each of its phases that misfits with or without it
+            (-inf: a phase that fit within the noise misfits with it).
         significant: it passes the BIC and signature tests (module docstring).
         determined: the data bound each of its parameters (a std below the value; a
             parameter run to the edge of its search means the effect vanished or degenerated).
+        note: why the fit failed, where it did.
+        form: the effect's form that fits best (``models.effects``: a family of forms).
     """
 
     effect: str
@@ -69,6 +75,8 @@ class Candidate:
     significant: bool
     determined: bool
     note: str = ""
+    form: str = ""
+    footprint: dict[str, float] = field(default_factory=dict)
 
     @property
     def eligible(self) -> bool:
@@ -99,7 +107,7 @@ class Diagnosis:
     def to_json(self) -> dict:
         return {
             "adequate": self.adequate, "missing_effect": self.missing_effect,
-            "candidates": [{"effect": c.effect, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
+            "candidates": [{"effect": c.effect, "form": c.form, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
                             "explained": _finite(c.explained), "eligible": c.eligible} for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided),
         }
@@ -146,15 +154,24 @@ def _excess(chi: float, n: int) -> float:
 
 def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
-    phases = effect_class(effect_id).shows_in or PHASES
+    cls = effect_class(effect_id, with_effect.forms.get(effect_id))
+    phases = cls.shows_in or PHASES
     chi_b, n_b = current.phase_chi2(phases)
     chi_a, n_a = with_effect.phase_chi2(phases)
     before, after = _excess(chi_b, n_b), _excess(chi_a, n_a)
     explained = (chi_b - chi_a) / (chi_b - n_b) if chi_b > n_b else 0.0
     delta = with_effect.bic - current.bic
-    significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED)
+    footprint = {}
+    for phase in phases if len(phases) > 1 else ():
+        (cb, nb), (ca, na) = current.phase_chi2((phase,)), with_effect.phase_chi2((phase,))
+        if _excess(cb, nb) > EXCESS_SIGMAS:
+            footprint[phase] = float((cb - ca) / (cb - nb))
+        elif _excess(ca, na) > EXCESS_SIGMAS:
+            footprint[phase] = -np.inf
+    significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED
+                       and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
     std, values = with_effect.estimate.std, with_effect.estimate.params
     # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
     determined = all(is_determined(values[k], std[k], DETERMINED_STD) for k in values if k.startswith(effect_id + "."))
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
-                     float(explained), significant, determined)
+                     float(explained), significant, determined, form=cls.form, footprint=footprint)

@@ -17,7 +17,7 @@ from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import ModelFit, add_effect, polish, restart_from_corrected
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
-from rheo_ros.models.effects import catalogue
+from rheo_ros.models.effects import catalogue, effect_class, effect_forms
 from rheo_ros.record import Record
 
 Progress = Callable[[str], None]
@@ -25,12 +25,26 @@ Progress = Callable[[str], None]
 
 def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
                noise: SensorNoise) -> Candidate:
-    """Fit ``current`` + the effect and judge it."""
+    """Fit ``current`` + the effect and judge it: its default form, then, where the data
+    ask for the family (the default lowers the BIC decisively), its other forms. The
+    family's candidate is its best form by BIC among those that earn their parameters,
+    else its best form by BIC."""
+    tried = [_try_form(record, forward, current, effect_id, noise, None)]
+    if tried[0].delta_bic < -BIC_DECISIVE:
+        tried += [_try_form(record, forward, current, effect_id, noise, cls.form)
+                  for cls in effect_forms(effect_id)[1:]]
+    eligible = [c for c in tried if c.eligible]
+    return min(eligible or tried, key=lambda c: c.delta_bic)
+
+
+def _try_form(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str, noise: SensorNoise,
+              form: str | None) -> Candidate:
     try:
-        best = add_effect(record, forward, current, effect_id, noise)
+        best = add_effect(record, forward, current, effect_id, noise, form)
     except Exception as exc:  # a user's effect may fail in any way: it loses, the diagnosis goes on
         return Candidate(effect_id, None, np.inf, np.nan, 0.0, 0.0, 0.0, False, False,
-                         note=f"the fit failed: {type(exc).__name__}: {exc}")
+                         note=f"the fit failed: {type(exc).__name__}: {exc}",
+                         form=effect_class(effect_id, form).form)
     return judge(current, best, effect_id)
 
 

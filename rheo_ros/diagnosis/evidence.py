@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, DETERMINED_STD, EXCESS_SIGMAS, Candidate
+from rheo_ros.diagnosis.decision import BIC_DECISIVE, DETERMINED_STD, EXCESS_EXPLAINED, EXCESS_SIGMAS, Candidate
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.identification.pipeline import is_determined
 from rheo_ros.models.effects import effect_class
@@ -47,7 +47,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         before = {p: current.rmse_by_phase.get(p, np.nan) for p in cls.shows_in if p in current.rmse_by_phase}
         moved = "; ".join(f"{p} RMS {before[p]:.3g} -> {c.fit.rmse_by_phase[p]:.3g} N" for p in before)
         parts.append(
-            f"Adding {missing} ({effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
+            f"Adding {missing} ({effect.form} form: {effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
             f"{current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows}) and removes "
             f"{100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
         std = c.fit.estimate.std
@@ -85,6 +85,12 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
                     why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} but the phases it shows in "
                                f"({', '.join(effect_class(c.effect).shows_in)}) fit within the noise "
                                f"({c.excess_before:.2g} sd)")
+                elif c.explained >= EXCESS_EXPLAINED and c.footprint:
+                    phase, share = min(c.footprint.items(), key=lambda kv: kv[1])
+                    why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} and removes "
+                               f"{100 * c.explained:.0f} % of the misfit where it shows, but "
+                               + (f"makes the {phase} phase misfit" if share == -np.inf else
+                                  f"only {100 * share:.0f} % in the {phase} phase"))
                 else:
                     why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} but removes only "
                                f"{100 * c.explained:.0f} % of the misfit where it shows")

@@ -13,7 +13,7 @@ from rheo_ros.diagnosis.compare import Comparison, compare
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.closed_form import from_final_displacement
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.fit import WholeRecordProblem, fit_record, live_ceiling, misfit_limit
+from rheo_ros.identification.fit import WholeRecordProblem, fit_record, live_ceiling, live_top, misfit_limit
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.identification.pipeline import fit_weights, force_error
 from rheo_ros.models.effects import Effect, FitContext, Model, effect_class
@@ -56,6 +56,11 @@ class ModelFit:
     @property
     def effects(self) -> tuple[str, ...]:
         return tuple(e.id for e in self.model.effects)
+
+    @property
+    def forms(self) -> dict[str, str]:
+        """Each effect's form, by id."""
+        return {e.id: e.form for e in self.model.effects}
 
     @property
     def bic(self) -> float:
@@ -128,8 +133,9 @@ def _context(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: Senso
     tactile, marker = fit.delays
     p = forward.predict(fit.model, fit.estimate.params["gamma"], record.profile(), record.force_t - tactile,
                         record.marker_t - marker)
+    cells = None if record.sensor is None else record.sensor.tactile.cells_per_segment
     return FitContext(record.profile(), fit.estimate.params, float(np.max(record.force)), record.force_t,
-                      record.force - p.force, noise.force_live)
+                      record.force - p.force, noise.force_live, cells)
 
 
 def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effect: Effect,
@@ -140,7 +146,8 @@ def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effec
     model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
     stats = current.estimate.statistics
     problem = WholeRecordProblem(record, model, stats.force_weights, stats.weights["markers"], forward=forward,
-                                 live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std))
+                                 live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
+                                 top=live_top(record, noise.force_std))
     tactile, marker = current.delays
     params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}
     try:
@@ -151,10 +158,10 @@ def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effec
 
 
 def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
-               noise: SensorNoise) -> ModelFit:
-    """``current`` + the effect, fitted from the best of the effect's starts (by the
-    chi-square there: a fit from each would cost a fit each)."""
-    starts = effect_class(effect_id).starts(_context(record, forward, current, noise))
+               noise: SensorNoise, form: str | None = None) -> ModelFit:
+    """``current`` + the effect (its ``form``, default: the family's default), fitted from
+    the best of its starts (by the chi-square there: a fit from each would cost a fit each)."""
+    starts = effect_class(effect_id, form).starts(_context(record, forward, current, noise))
     start = min(starts, key=lambda e: _start_cost(record, forward, current, e, noise))
     return fit_model(record, forward, (*current.model.effects, start), current.estimate.params, noise)
 

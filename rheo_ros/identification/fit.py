@@ -78,6 +78,8 @@ class WholeRecordProblem:
             (the live threshold); a model predicting more there is penalised by the
             excess over the noise (a censored reading: the sensor read nothing, so the
             force was below it). None: readings that are not live are left out.
+        top: (nodes,) N: the lowest force a saturated reading (one above it) can stand
+            for; a model predicting less there is penalised likewise. None: no saturation.
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -94,6 +96,7 @@ class WholeRecordProblem:
     live: np.ndarray | None = None
     delays: bool = False
     ceiling: np.ndarray | None = None
+    top: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
@@ -140,6 +143,8 @@ class WholeRecordProblem:
         parts = [rf.ravel(), rm.ravel(), prior]
         if self.ceiling is not None:
             over = np.maximum(p.force - self.ceiling, 0.0) / self.force_std
+            if self.top is not None:   # a saturated reading: the force was at least the top
+                over = np.where(self._force > self.top, np.maximum(self.top - p.force, 0.0) / self.force_std, over)
             parts.append(np.nan_to_num(over[~self._live]))
         return np.concatenate(parts)
 
@@ -166,6 +171,13 @@ def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
     dead band's live threshold at noise ``force_std``); None without a dead band."""
     band = record.dead_band
     return None if band is None else band.threshold(np.nan_to_num(force_std))
+
+
+def live_top(record: Record, force_std: np.ndarray) -> np.ndarray | None:
+    """(nodes,) N: the smallest force a saturated reading can stand for (the top of the
+    live range at noise ``force_std``); None without saturation."""
+    band = record.dead_band
+    return None if band is None or not np.any(np.isfinite(band.saturation)) else band.top(np.nan_to_num(force_std))
 
 
 @dataclass(frozen=True)
@@ -402,6 +414,7 @@ def fit_record(
     problem = WholeRecordProblem(
         record, model, weights.force_std if weights else scale_f, weights.marker_std if weights else 1e-5,
         forward=forward, live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
+        top=live_top(record, noise.force_std),
     )
     fixed = fixed or {}
     all_names = problem.names

@@ -1,11 +1,7 @@
-"""The sensor noise the data show, independent of any model.
-
-A measured signal is a smooth response plus white noise; its second difference
-``y[i-1] - 2 y[i] + y[i+1]`` is noise with variance 6 sigma^2 plus the response's
-curvature, which at the sensors' rates is far below the noise except at a phase's
-corners. A robust scale (median absolute deviation) of the second differences ignores
-those few corners. Tactile readings count only where they are live (above the dead
-band, ``DeadBand``): the dead band's exact zeros would claim a noise-free sensor.
+"""The sensor noise the data show, independent of any model: each signal's second
+differences (``sensors.difference_noise``). Tactile readings count only where they are
+live (above the dead band, ``DeadBand``): the dead band's exact zeros would claim a
+noise-free sensor.
 """
 
 from __future__ import annotations
@@ -15,24 +11,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rheo_ros.record import Record
+from rheo_ros.sensors import difference_noise
 
-MIN_DIFFERENCES = 10   # fewer live second differences than this: the noise is not known
-MAD_TO_STD = 1.4826    # of a Gaussian
-
-
-def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[float, int]:
-    """White-noise std of a smooth signal ``y`` (T, ...) along its first axis from its
-    second differences, counting only where three samples in a row are in ``use``
-    (T, ...). Returns the std (NaN when too few) and the differences counted."""
-    y = np.asarray(y, float)
-    d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
-    if use is not None:
-        d2 = d2[use[:-2] & use[1:-1] & use[2:]]
-    d2 = d2.ravel()
-    if d2.size < MIN_DIFFERENCES:
-        return float("nan"), int(d2.size)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(MAD_TO_STD * mad / np.sqrt(6.0)), int(d2.size)
+__all__ = ["SensorNoise", "Weights", "difference_noise", "force_noise", "sensor_noise"]
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,14 @@ a hook, so the base elements and the FE model never learn about it:
   specimen's stress (adhesion, drift), given when the stage let go (``Release``).
   It needs no history, so a streaming simulator calls it sample by sample.
 
-A user registers an effect from their own package with ``@register_effect`` or
-through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
+An effect is a family of forms (a drift that is a line or that settles; one
+relaxation arm or two): every form of a family shares its ``id`` and says which it is
+in ``form``; the first registered is the family's default. The diagnosis fits the
+default and, where the data ask for the family, its other forms, and names the
+family with the form that fits best.
+
+A user registers an effect (or another form of one) from their own package with
+``@register_effect`` or through the ``rheo_ros.effects`` entry-point group; effect rates (a relaxation
 time) are parameters to fit, not a list to enumerate. For the model-discovery loop
 (``rheo_ros.diagnosis``) an effect also says where its fit may start (``starts``),
 which phases show it (``shows_in``), which of its parameters may take either sign
@@ -24,7 +30,7 @@ which phases show it (``shows_in``), which of its parameters may take either sig
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from importlib.metadata import entry_points
 from typing import ClassVar, TypeVar
 
@@ -59,6 +65,8 @@ class FitContext:
         peak_force: the largest force one tactile segment read (N).
         force_t: (T,) s; residual: (T, nodes) N, measured minus the current model;
         live: (T, nodes) the readings that count (above the dead band).
+        cells: (nodes,) tactile cells per segment (a uniform pressure's force is in
+            proportion), None where not known.
     """
 
     profile: StageProfile
@@ -67,13 +75,15 @@ class FitContext:
     force_t: np.ndarray
     residual: np.ndarray
     live: np.ndarray
+    cells: np.ndarray | None = None
 
 
 class Effect:
     """Base of all effects: a frozen dataclass whose float fields are its parameters.
 
     Class attributes a subclass sets:
-        id: the effect's name in models and reports.
+        id: the effect's (its family's) name in models and reports.
+        form: which of the family's forms it is (the first registered is the default).
         shows_in: phases whose residuals it changes most (``before``, ``pull``,
             ``keep``, ``release``): the diagnosis checks that adding it moved them.
         signed: parameters that may take either sign (fitted on a linear scale; the
@@ -82,6 +92,7 @@ class Effect:
     """
 
     id: ClassVar[str]
+    form: ClassVar[str] = "default"
     shows_in: ClassVar[tuple[str, ...]] = ()
     signed: ClassVar[tuple[str, ...]] = ()
     resolving_experiment: ClassVar[str] = "a longer record"
@@ -97,11 +108,13 @@ class Effect:
 
     def describe(self) -> str:
         """The fitted effect in words, for the diagnosis's evidence."""
-        return ", ".join(f"{f.name} {getattr(self, f.name):.3g}" for f in fields(self))
+        return ", ".join(f"{k.split('.', 1)[1]} {v:.3g}" for k, v in self.parameters.items())
 
     @property
     def parameters(self) -> dict[str, float]:
-        return {f"{self.id}.{f.name}": float(getattr(self, f.name)) for f in fields(self)}
+        # A field with metadata {"parameter": False} is set up, not fitted (a layout).
+        return {f"{self.id}.{f.name}": float(getattr(self, f.name)) for f in fields(self)
+                if f.metadata.get("parameter", True)}
 
     def with_parameters(self, values: Mapping[str, float]) -> Effect:
         own = {k.split(".", 1)[1]: v for k, v in values.items() if k.startswith(self.id + ".")}
@@ -120,20 +133,22 @@ class Effect:
         return force
 
 
-_REGISTRY: dict[str, type[Effect]] = {}
+_REGISTRY: dict[str, dict[str, type[Effect]]] = {}   # id -> form -> class, the default first
 E = TypeVar("E", bound=type[Effect])
 
 
 def register_effect(cls: E) -> E:
-    """Class decorator: make an effect available by its ``id``."""
-    if cls.id in _REGISTRY and _REGISTRY[cls.id] is not cls:
-        raise ValueError(f"effect id {cls.id!r} is registered already")
-    _REGISTRY[cls.id] = cls
+    """Class decorator: make an effect available by its ``id`` (a further form of a
+    family already registered when its ``form`` is new)."""
+    forms = _REGISTRY.setdefault(cls.id, {})
+    if forms.get(cls.form, cls) is not cls:
+        raise ValueError(f"effect id {cls.id!r} form {cls.form!r} is registered already")
+    forms[cls.form] = cls
     return cls
 
 
 def unregister_effect(effect_id: str) -> None:
-    """Forget a registered effect (a plugin unloaded, a test's own effect)."""
+    """Forget a registered effect, every form (a plugin unloaded, a test's own effect)."""
     _REGISTRY.pop(effect_id, None)
 
 
@@ -145,16 +160,28 @@ def catalogue() -> tuple[str, ...]:
     return tuple(_REGISTRY)
 
 
-def effect_class(effect_id: str) -> type[Effect]:
-    """The effect registered under ``effect_id`` (own catalogue, then entry points)."""
+def effect_forms(effect_id: str) -> tuple[type[Effect], ...]:
+    """Every form of the effect ``effect_id``, its default first (own catalogue, then
+    entry points)."""
     if effect_id not in _REGISTRY:
         for ep in entry_points(group="rheo_ros.effects"):
             if ep.name == effect_id:
                 register_effect(ep.load())
     try:
-        return _REGISTRY[effect_id]
+        return tuple(_REGISTRY[effect_id].values())
     except KeyError:
         raise KeyError(f"unknown effect {effect_id!r}; known: {', '.join(sorted(_REGISTRY))}") from None
+
+
+def effect_class(effect_id: str, form: str | None = None) -> type[Effect]:
+    """The effect registered under ``effect_id``: its ``form``, or its default form."""
+    forms = effect_forms(effect_id)
+    if form is None:
+        return forms[0]
+    for cls in forms:
+        if cls.form == form:
+            return cls
+    raise KeyError(f"effect {effect_id!r} has no form {form!r}; its forms: {', '.join(c.form for c in forms)}")
 
 
 @register_effect
@@ -166,6 +193,7 @@ class RelaxationBranch(Effect):
     """
 
     id: ClassVar[str] = "relaxation_branch"
+    form: ClassVar[str] = "one_arm"
     shows_in: ClassVar[tuple[str, ...]] = ("keep",)
     resolving_experiment: ClassVar[str] = "a keep at least five times the fast relaxation time, sampled well within it"
     stiffness: float
@@ -197,6 +225,7 @@ class SensorDrift(Effect):
     """Tactile offset (N per node) and linear drift (N/s per node) from t = 0."""
 
     id: ClassVar[str] = "sensor_drift"
+    form: ClassVar[str] = "linear"
     # Every live reading carries it; before contact and after release it is alone, but an
     # offset below the dead band shows only where the specimen presses (in pull and keep).
     shows_in: ClassVar[tuple[str, ...]] = ("before", "pull", "keep", "release")
@@ -235,6 +264,7 @@ class Adhesion(Effect):
     return to zero."""
 
     id: ClassVar[str] = "adhesion"
+    form: ClassVar[str] = "fading"
     shows_in: ClassVar[tuple[str, ...]] = ("release",)
     resolving_experiment: ClassVar[str] = "a longer record after release"
     fraction: float
@@ -264,6 +294,7 @@ class StrainStiffening(Effect):
     """
 
     id: ClassVar[str] = "strain_stiffening"
+    form: ClassVar[str] = "linear"
     shows_in: ClassVar[tuple[str, ...]] = ("pull",)
     resolving_experiment: ClassVar[str] = "a deeper push"
     coefficient: float
@@ -277,6 +308,130 @@ class StrainStiffening(Effect):
 
     def stress_scale(self, strain: np.ndarray) -> np.ndarray:
         return 1.0 + self.coefficient * np.maximum(strain, 0.0)
+
+
+@register_effect
+@dataclass(frozen=True)
+class TwoRelaxationArms(RelaxationBranch):
+    """Two relaxation modes: Maxwell arms (stiffness Pa, viscosity Pa s) ``stiffness``,
+    ``viscosity`` and ``stiffness_2``, ``viscosity_2`` in parallel with the base."""
+
+    form: ClassVar[str] = "two_arms"
+    stiffness_2: float = 1.0
+    viscosity_2: float = 1.0
+
+    @property
+    def time_2(self) -> float:
+        return self.viscosity_2 / self.stiffness_2
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        # A fast and a slower mode within the keep: a fortieth and a fifth of it.
+        k = 0.25 * context.params.get("E", 1.0)
+        keep = context.profile.keep_time
+        return (cls(k, k * keep * 0.025, k, k * keep * 0.2),)
+
+    def describe(self) -> str:
+        return (f"two Maxwell arms: {self.stiffness:.3g} Pa, relaxation time {self.time:.3g} s, and "
+                f"{self.stiffness_2:.3g} Pa, {self.time_2:.3g} s")
+
+    def material(self, element: Element) -> Element:
+        second = maxwell(self.stiffness_2, self.viscosity_2, (f"{self.id}.stiffness_2", f"{self.id}.viscosity_2"))
+        return Parallel((super().material(element), second))
+
+
+@register_effect
+@dataclass(frozen=True)
+class SettlingDrift(Effect):
+    """Each tactile cell's baseline settles exponentially from t = 0: ``offset +
+    amplitude (1 - exp(-t / time))`` (N per average segment), each segment's share in
+    proportion to its cells (``shares``: cells over the mean; equal when not known)."""
+
+    id: ClassVar[str] = "sensor_drift"
+    form: ClassVar[str] = "settling"
+    shows_in: ClassVar[tuple[str, ...]] = SensorDrift.shows_in
+    signed: ClassVar[tuple[str, ...]] = ("offset", "amplitude")
+    resolving_experiment: ClassVar[str] = SensorDrift.resolving_experiment
+    offset: float
+    amplitude: float
+    time: float
+    shares: tuple[float, ...] | None = field(default=None, metadata={"parameter": False})
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        shares = None if context.cells is None else tuple((context.cells / np.mean(context.cells)).tolist())
+        return tuple(replace(e, shares=shares) for e in cls._starts(context))
+
+    @classmethod
+    def _starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        # Settled by the end of the record at the level the quiet readings after release
+        # show (before contact there is often only a second), over a tenth or a third of it;
+        # or the linear form's line through the quiet readings, the same rise over the record.
+        t, prof = context.force_t, context.profile
+        t_end = max(prof.t_end, 1.0)
+        after = (t > prof.t_keep_end)[:, None] & context.live
+        level = float(np.mean(context.residual[after])) if after.sum() >= 10 else 0.01 * context.peak_force
+        out = [cls(0.0, level, f * t_end) for f in (0.1, 0.3)]
+        lines = SensorDrift.starts(context)
+        out += [cls(line.offset, line.rate * t_end, 0.3 * t_end) for line in lines[1:]]   # [0]: a blind guess
+        return tuple(out)
+
+    def describe(self) -> str:
+        return (f"a tactile offset of {self.offset:.3g} N per segment settling by {self.amplitude:.3g} N "
+                f"over {self.time:.3g} s")
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        settled = -np.expm1(-np.maximum(np.asarray(t), 0.0) / self.time)
+        shares = np.ones(np.shape(force)[1]) if self.shares is None else np.asarray(self.shares)
+        return force + (self.offset + self.amplitude * settled)[:, None] * shares[None]
+
+
+@register_effect
+@dataclass(frozen=True)
+class HeldAdhesion(Effect):
+    """The specimen stays stuck after release: each node keeps ``fraction`` of the force
+    it carried as the stage let go, for the whole record."""
+
+    id: ClassVar[str] = "adhesion"
+    form: ClassVar[str] = "held"
+    shows_in: ClassVar[tuple[str, ...]] = Adhesion.shows_in
+    resolving_experiment: ClassVar[str] = Adhesion.resolving_experiment
+    fraction: float
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        return (cls(0.1),)
+
+    def describe(self) -> str:
+        return f"{100 * self.fraction:.3g} % of the force held after release"
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        if release is None:
+            return force
+        held = (np.asarray(t) >= release.t).astype(float)
+        return force + self.fraction * held[:, None] * release.force[None]
+
+
+@register_effect
+@dataclass(frozen=True)
+class ExponentialStiffening(Effect):
+    """Stiffness grows exponentially with strain: stress x exp(``coefficient`` x nominal strain)."""
+
+    id: ClassVar[str] = "strain_stiffening"
+    form: ClassVar[str] = "exponential"
+    shows_in: ClassVar[tuple[str, ...]] = StrainStiffening.shows_in
+    resolving_experiment: ClassVar[str] = StrainStiffening.resolving_experiment
+    coefficient: float
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        return (cls(1.0),)
+
+    def describe(self) -> str:
+        return f"stress x exp({self.coefficient:.3g} x strain)"
+
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        return np.exp(self.coefficient * np.maximum(strain, 0.0))
 
 
 @dataclass(frozen=True)

@@ -151,7 +151,7 @@ class EstimatorNode(Node):
             self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
         self.dispatch(arrival)
         if stream == "force":
-            self.publish_force(t, value)
+            self.publish_force(t, self.setup.tactile.nodal_forces(value[None])[0])
         elif stream == "markers":
             self.publish_markers(t)
 
@@ -172,19 +172,19 @@ class EstimatorNode(Node):
         self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
 
     def on_tactile(self, msg: Image) -> None:
-        self._feed("force", msg, self._nodal_forces, self.core.add_force)
+        self._feed("force", msg, self._checked_image, self.core.add_image)
 
     def on_markers(self, msg: PoseArray) -> None:
         self._feed("markers", msg, read_marker_array, self.core.add_markers)
 
-    def _nodal_forces(self, msg: Image) -> np.ndarray:
+    def _checked_image(self, msg: Image) -> np.ndarray:
         image = read_pressure_image(msg)
         expected = (self.setup.tactile.rows, self.setup.tactile.cols)
         if image.shape != expected:
             raise MessageError(f"image {image.shape[0]} x {image.shape[1]}, parameters say {expected[0]} x {expected[1]}")
         if not np.all(np.isfinite(image)):
             raise MessageError("data: non-finite pressures")
-        return self.setup.tactile.nodal_forces(image[None])[0]
+        return image
 
     # -- identification lanes ------------------------------------------------------------
 
@@ -397,7 +397,12 @@ class EstimatorNode(Node):
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
         if any(self.bad.values()):
             reasons.append(f"{sum(self.bad.values())} bad message(s), last: {self.last_bad}")
+        sensor = self.core.sensor
+        if sensor is not None:
+            reasons += sensor.warnings
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
+                   **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",
+                                                 "marker noise m": f"{sensor.marker_noise:.4g}"}),
                    "interim fits skipped": self.fit_jobs.replaced,
                    **{f"bad {TOPICS[s]}": n for s, n in self.bad.items()},
                    **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},

@@ -56,6 +56,7 @@ from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.record import Record, RecordError
+from rheo_ros.sensors import SensorReading, TactileReadout
 
 
 @dataclass(frozen=True)
@@ -325,6 +326,8 @@ class OnlineEstimator:
                  config: EstimatorConfig | None = None) -> None:
         self.setup, self.mesh = setup, setup.mesh
         self.tactile = setup.tactile
+        self.readout = TactileReadout()   # the tactile readings so far, for the sensor they show
+        self.sensor: SensorReading | None = None   # as the last record's readings showed it
         self.config = config or EstimatorConfig()
         self.segmenter = PhaseSegmenter(segmenter)
         self.streams = {"stage": _Stream(), "force": _Stream(), "markers": _Stream()}
@@ -352,14 +355,17 @@ class OnlineEstimator:
         return self._took(events)
 
     def add_image(self, t: float, image: np.ndarray) -> list[PhaseEvent]:
-        """A tactile frame (rows, cols) in Pa."""
-        forces = self.tactile.nodal_forces(np.asarray(image)[None])[0]
-        return self.add_force(t, forces)
+        """A tactile frame (rows, cols) in Pa: its segment forces, and what its readings
+        show of the sensor (``readout``)."""
+        image = np.asarray(image)
+        return self.add_force(t, self.tactile.nodal_forces(image[None])[0], image)
 
-    def add_force(self, t: float, forces: np.ndarray) -> list[PhaseEvent]:
-        """Bottom nodal forces (N) of one tactile frame."""
+    def add_force(self, t: float, forces: np.ndarray, image: np.ndarray | None = None) -> list[PhaseEvent]:
+        """Bottom nodal forces (N) of one tactile frame (and the frame they came from)."""
         if not self._store("force", t, np.asarray(forces, float)):
             return []
+        if image is not None:
+            self.readout.add(image)
         return self._took(self.segmenter.add_force(t, float(np.sum(forces))))
 
     def add_markers(self, t: float, positions: np.ndarray) -> list[PhaseEvent]:
@@ -480,13 +486,13 @@ class OnlineEstimator:
             profile = replace(profile, release_time=max(e.t_end - profile.t_keep_end, 0.0))
         t0 = profile.t_pull_start - self.config.pre_contact
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
+        force = parts["force"][1].reshape(-1, self.mesh.cols)
+        markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
+        self.sensor = self.setup.sensor(self.readout, force, markers)
         try:
             return Record(mesh=self.mesh, stage_t=parts["stage"][0], stage_depth=parts["stage"][1],
-                          force_t=parts["force"][0], force=parts["force"][1].reshape(-1, self.mesh.cols),
-                          marker_t=parts["markers"][0],
-                          markers=parts["markers"][1].reshape(-1, *self.mesh.nodes.shape),
-                          source=f"experiment {e.experiment} {e.name}", stage_profile=profile,
-                          dead_band=self.tactile.dead_band)
+                          force_t=parts["force"][0], force=force, marker_t=parts["markers"][0], markers=markers,
+                          source=f"experiment {e.experiment} {e.name}", stage_profile=profile, sensor=self.sensor)
         except RecordError:
             return None
 

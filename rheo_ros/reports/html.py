@@ -94,6 +94,7 @@ def render_report(result: Analysis) -> str:
         f"<h1>rheo analyze: <code>{bag}</code></h1>",
         f'<p class="verdict{"" if settled else " open"}" id="verdict">{html.escape(verdict)}</p>',
         _phases_section(result),
+        _sensor_section(result),
         _diagnosis_section(result),
         _error_section(result),
         _force_section(result),
@@ -138,6 +139,20 @@ def _phases_section(result: Analysis) -> str:
              f"{rows}</table>")
     figure = _figure(_stage_svg(result), "The stage depth the phases were read from.")
     return f"<section><h2>Phases</h2>{table}{figure}</section>"
+
+
+def _sensor_section(result: Analysis) -> str:
+    """The sensor the analysis used, as the data showed it, and where the parameters disagreed."""
+    sensor = result.record.sensor
+    if sensor is None:
+        return "<section><h2>Sensor</h2><p>A model record: no sensor.</p></section>"
+    rows = "".join(f'<tr data-field="{html.escape(k)}"><td>{html.escape(k)}</td>'
+                   f"<td>{html.escape(v)}</td></tr>" for k, v in sensor.source.items())
+    warnings = "".join(f"<li>{html.escape(w)}</li>" for w in sensor.warnings)
+    return (f'<section><h2>Sensor</h2><p id="sensor-law">{html.escape(sensor.law)}; cell noise '
+            f"{sensor.tactile.noise:.3g} Pa, marker noise {sensor.marker_noise:.3g} m.</p>"
+            f'<table id="sensor-source"><tr><th>field</th><th>from</th></tr>{rows}</table>'
+            + (f'<ul id="sensor-warnings">{warnings}</ul>' if warnings else "") + "</section>")
 
 
 def _diagnosis_section(result: Analysis) -> str:

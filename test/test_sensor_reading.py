@@ -1,0 +1,119 @@
+"""The sensor as the data show it (``sensors.read_sensor``), on readings the package did
+not make: the independent generator's sensors (test/generator.py, seed 1, the Table IV
+material, the default experiment), with only the contract's names in the parameters."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import generator as g
+import numpy as np
+import pytest
+import yaml
+
+from rheo_ros.config.setup import Setup, parse_params
+from rheo_ros.sensors import LINEAR, TactileArray, TactileReadout, read_sensor
+
+CONTRACT_ONLY = yaml.safe_dump(g.params_document(g.Layout()))
+CELL_NOISE = 100.0          # Pa, every noisy sensor of the generator
+MARKER_NOISE = 2e-5         # m, all but the noisy camera
+
+
+def record(sensor: str, params: str = CONTRACT_ONLY, **data_changes):
+    data = replace(g.synthesize(sensor=sensor, seed=1), **data_changes)
+    setup = Setup(parse_params(params, "<test>"))
+    return setup.record(data.stage_t, data.depth, data.tactile_t, data.images, data.marker_t, data.markers)
+
+
+@pytest.fixture(scope="module")
+def sensors() -> dict:
+    return {name: record(name).sensor for name in g.SENSORS}
+
+
+@pytest.mark.parametrize("name, threshold, resolution, saturation", [
+    ("default_like", 300.0, 10.0, math.inf),
+    ("no_dead_band", 0.0, 0.0, math.inf),     # the noise clipped at zero, continuous
+    ("clipped", 300.0, 10.0, 4000.0),
+    ("quantised", 0.0, 50.0, math.inf),
+    ("noisy_camera", 300.0, 10.0, math.inf),
+])
+def test_each_sensor_law_is_read_from_the_readings(sensors, name, threshold, resolution, saturation):
+    """Dead band, clipping at zero, quantisation step and saturation exactly (a dead band
+    within one 10 Pa step), the cell noise within 5 % of the generator's 100 Pa (measured
+    100.4-103.8 Pa) and the camera's within 5 % (measured 2.010e-5 and 1.005e-4 m), all
+    from the data: the parameters name none of them. No warning: nothing was stated."""
+    s = sensors[name]
+    assert s.tactile.threshold == pytest.approx(threshold, abs=10.0)
+    assert s.tactile.resolution == pytest.approx(resolution, rel=1e-6)
+    assert s.tactile.saturation == saturation
+    assert s.tactile.noise == pytest.approx(CELL_NOISE, rel=0.05)
+    camera = 1e-4 if name == "noisy_camera" else MARKER_NOISE
+    assert s.marker_noise == pytest.approx(camera, rel=0.05)
+    assert set(s.source.values()) == {"data"} and s.warnings == ()
+
+
+def test_noise_free_readings_are_read_as_noise_free(sensors):
+    """Zero cell and camera noise (not the numerical 1e-8 of a smooth curve's second
+    differences); no gap in noise-free readings is taken for a dead band: the default
+    300 Pa band, below the first loaded reading, is kept."""
+    s = sensors["noise_free"]
+    assert s.tactile.noise == 0.0 and s.marker_noise == 0.0
+    assert s.tactile.threshold == 300.0 and s.source["tactile.threshold"] == "parameters"
+
+
+def test_readings_below_zero_are_a_linear_cell():
+    """A cell that reports its noise unclipped: no dead band, every reading live."""
+    rng = np.random.default_rng(3)
+    array = TactileArray(rows=2, cols=5, width=0.05, depth=0.01, nodes=5)
+    load = np.linspace(0.0, 5000.0, 400)[:, None, None] * np.ones((1, 2, 5))
+    images = (load + 100.0 * rng.standard_normal(load.shape)).astype(np.float32)
+    readout = TactileReadout()
+    readout.add(images)
+    s = read_sensor(array, readout, array.nodal_forces(images), float("nan"), 2e-5)
+    assert s.tactile.threshold == LINEAR and s.tactile.dead_band is None
+    assert s.tactile.noise == pytest.approx(100.0, rel=0.1)
+    assert s.source["markers.noise"] == "parameters" and s.marker_noise == 2e-5
+
+
+def test_the_readout_is_the_same_frame_by_frame_as_whole(sensors):
+    """The node adds one frame at a time, a bag all at once: the same facts."""
+    images = g.synthesize(sensor="quantised", seed=1).images
+    whole, frames = TactileReadout(), TactileReadout()
+    whole.add(images)
+    for image in images:
+        frames.add(image)
+    assert whole.readings == frames.readings and whole.zeros == frames.zeros
+    assert whole.smallest_positive == frames.smallest_positive and whole.at_largest == frames.at_largest
+    np.testing.assert_array_equal(whole.distinct, frames.distinct)
+    assert whole.resolution == frames.resolution == 50.0
+
+
+def stated(**tactile) -> str:
+    doc = g.params_document(g.Layout())
+    doc["/**"]["ros__parameters"]["tactile"].update(tactile)
+    return yaml.safe_dump(doc)
+
+
+def test_a_stated_value_the_data_contradict_is_a_warning_and_the_data_win():
+    """A file stating a 500 Pa dead band, 40 Pa of noise and 1 Pa steps for the default-like
+    sensor (300 Pa, 100 Pa, 10 Pa): one line per field naming it and both values; the
+    analysis uses what the data show."""
+    s = record("default_like", stated(threshold=500.0, noise=40.0, resolution=1.0)).sensor
+    fields = [w.split(":")[0] for w in s.warnings]
+    assert sorted(fields) == ["tactile.noise", "tactile.resolution", "tactile.threshold"], s.warnings
+    threshold = next(w for w in s.warnings if w.startswith("tactile.threshold"))
+    assert "500 Pa" in threshold and "300 Pa" in threshold
+    assert s.tactile.threshold == 300.0 and s.tactile.resolution == 10.0
+    assert s.tactile.noise == pytest.approx(CELL_NOISE, rel=0.05)
+
+
+def test_a_stated_dead_band_on_a_clipped_sensor_is_contradicted():
+    s = record("no_dead_band", stated(threshold=500.0)).sensor
+    assert [w.split(":")[0] for w in s.warnings] == ["tactile.threshold"]
+    assert "exact zeros" in s.warnings[0] and s.tactile.threshold == 0.0
+
+
+def test_a_stated_value_the_data_agree_with_is_silent():
+    s = record("default_like", stated(noise=110.0)).sensor
+    assert s.warnings == ()
