@@ -265,3 +265,20 @@ def test_verdict_flattens_every_step_in_order():
     assert one.adequate is False and isinstance(one.adequate, bool)
     assert one.missing_effects == () and one.undecided == ("adhesion", "sensor_drift")
     assert one.candidates == middle.candidates and one.evidence == "step two."
+
+
+def test_the_footprint_counts_phases_beyond_five_sd_and_any_effect_of_two_phases(monkeypatch):
+    """A phase at exactly 5 sd of excess (chi 300 over 200 readings) is no misfit, before
+    or after; an effect showing in two phases is judged in each."""
+    monkeypatch.setattr(decision, "effect_class",
+                        lambda effect_id, form=None: SimpleNamespace(shows_in=("pull", "keep"), form=""))
+
+    def judged(pull, keep):
+        before = Fit({"pull": (pull[0], 200), "keep": (keep[0], 200)}, bic=1000.0)
+        after = Fit({"pull": (pull[1], 200), "keep": (keep[1], 200)}, bic=900.0)
+        return judge(before, after, "two_phases")
+
+    assert judged(pull=(3000.0, 200.0), keep=(300.0, 300.0)).footprint == {"pull": 1.0}
+    assert judged(pull=(3000.0, 200.0), keep=(200.0, 300.0)).footprint == {"pull": 1.0}
+    c = judged(pull=(3000.0, 200.0), keep=(300.0, 301.0))
+    assert c.footprint == {"pull": 1.0, "keep": -np.inf} and not c.significant
