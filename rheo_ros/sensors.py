@@ -108,7 +108,7 @@ class TactileArray:
         cell (no dead band, no clipping: every reading is)."""
         if self.threshold == LINEAR and self.saturation == math.inf:
             return None
-        cells = self.columns_per_segment * self.rows
+        cells = self.cells_per_segment
         return DeadBand(self.threshold * cells * self.cell_area, cells, self.saturation * cells * self.cell_area)
 
     @property
@@ -123,7 +123,7 @@ class TactileArray:
     @cached_property
     def _spread(self) -> np.ndarray:
         """(nodes, cols): pressure per column (Pa) per newton on each node."""
-        counts = self.columns_per_segment * self.rows
+        counts = self.cells_per_segment
         S = np.zeros((self.nodes, self.cols))
         S[self.segment, np.arange(self.cols)] = 1.0 / (counts[self.segment] * self.cell_area)
         return S
@@ -312,7 +312,7 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
     """
     warnings: list[str] = []
     source = dict.fromkeys(("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise"), "data")
-    cells = stated.columns_per_segment * stated.rows
+    cells = stated.cells_per_segment
     to_cell = np.sqrt(cells) * stated.cell_area   # a segment's force std per cell std (Pa -> N)
 
     frames = readout.readings / (stated.rows * stated.cols)

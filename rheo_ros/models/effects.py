@@ -414,18 +414,10 @@ class HeldAdhesion(Effect):
 
 @register_effect
 @dataclass(frozen=True)
-class ExponentialStiffening(Effect):
+class ExponentialStiffening(StrainStiffening):
     """Stiffness grows exponentially with strain: stress x exp(``coefficient`` x nominal strain)."""
 
-    id: ClassVar[str] = "strain_stiffening"
     form: ClassVar[str] = "exponential"
-    shows_in: ClassVar[tuple[str, ...]] = StrainStiffening.shows_in
-    resolving_experiment: ClassVar[str] = StrainStiffening.resolving_experiment
-    coefficient: float
-
-    @classmethod
-    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
-        return (cls(1.0),)
 
     def describe(self) -> str:
         return f"stress x exp({self.coefficient:.3g} x strain)"
