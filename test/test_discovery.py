@@ -83,11 +83,14 @@ CLEAN = [
 @pytest.mark.parametrize("seed,extra", CLEAN, ids=[f"clean-{s}" for s, _ in CLEAN])
 def test_clean_data_are_adequate_and_no_effect_is_claimed(tmp_path, seed, extra):
     bag = make_bag(tmp_path, "run", seed, **extra)
-    result = rheo_ros.analyze(bag)
+    steps: list[str] = []
+    result = rheo_ros.analyze(bag, progress=steps.append)
     d = result.to_json()["diagnosis"]
     assert d["adequate"] and d["missing_effect"] is None and d["missing_effects"] == [], d["evidence"]
     assert len(result.models) == 1
     assert "is adequate" in d["evidence"]
+    # Where the model fits, no family's other forms are fitted (clean-22: 44 s -> 8 s).
+    assert not [s for s in steps if " form)" in s], steps
 
 
 def test_a_keep_too_short_for_the_second_time_says_which_parameter_is_open_and_what_would_pin_it(tmp_path):

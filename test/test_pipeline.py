@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import BAGS
+from generator import Profile, generate
 
 from rheo_ros.app.analyze import analyze, estimate_bag
 from rheo_ros.app.simulate import simulate_to_bag
@@ -114,3 +115,25 @@ def test_with_discovery_the_node_names_what_rheo_analyze_names_on_a_cut_short_re
     assert "cut short" in online.evidence
     np.testing.assert_allclose(online.rmse_force, [m["rmse_force"] for m in report["models"]], rtol=1e-6)
 
+
+
+def test_on_a_bag_the_package_did_not_make_the_node_diagnoses_what_rheo_analyze_does(tmp_path):
+    """The independent generator (test/generator.py, seed 2, default-like sensor: 300 Pa
+    dead band, 10 Pa steps) with its Voigt spring stiffening exponentially (k = 4), a
+    short keep and release: the node reads the sensor from the images as the analysis
+    does and names the same effect with the same numbers (measured: equal to the last
+    digit; k 4.010, E 33281 Pa against 33300)."""
+    bag = generate(tmp_path / "bag", effects="strain_stiffening", seed=2,
+                   profile=Profile(keep_time=15.0, release_time=25.0))
+    diagnoses: list[OnlineDiagnosis] = []
+    final_update(bag, diagnoses, interim=False)
+    online = diagnoses[0]
+    report = analyze(bag, workers=1).to_json()
+    assert online.missing_effects == tuple(report["diagnosis"]["missing_effects"]) == ("strain_stiffening",)
+    assert online.adequate is report["diagnosis"]["adequate"] is True
+    assert report["models"][-1]["forms"] == {"strain_stiffening": "voigt_exponential"}
+    assert "voigt_exponential form" in online.evidence
+    last = report["models"][-1]
+    for name, value in zip(online.names, online.values):
+        assert value == pytest.approx(last["params"][name], rel=SAME), name
+    np.testing.assert_allclose(online.rmse_force, [m["rmse_force"] for m in report["models"]], rtol=SAME)

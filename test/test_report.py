@@ -381,7 +381,7 @@ def test_misfit_windows_are_drawn_where_the_analysis_puts_them(
         # phase ..., systematic over a-b s, c-d s" (0.1 s).
         for step in (s for s in report_json["diagnosis"]["steps"] if s["model"] == model["name"]):
             said = re.match(rf"{re.escape(model['name'])}: total force RMS \S+ N over the record; worst in the (\w+) "
-                            r"phase at \S+ x the sensor noise, systematic over ((?:\d+\.\d-\d+\.\d s(?:, )?)+)",
+                            r"phase at \S+ x the noise, systematic over ((?:\d+\.\d-\d+\.\d s(?:, )?)+)",
                             step["evidence"])
             if not said:
                 continue

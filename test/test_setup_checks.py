@@ -50,10 +50,14 @@ def params_file(tmp_path: Path, body: str) -> Path:
         ("geometry: uniaxial\nboundary: {top: bonded, bottom: frictionless}",
          f"p.yaml: boundary.top: 'bonded' {UNIAXIAL_BONDED}"),
         ("geometry: uniaxial\nmarkers: {cols: 1}\ntactile: {cols: 1}", "p.yaml: markers.cols: 1 markers; must be at least 2"),
+        ("simulator: {effects: [strain_stiffening]}\n"
+         "effects: {strain_stiffening: {coefficient: 2.0, form: voigt_exponential}}",
+         "p.yaml: effects.strain_stiffening.form: 'voigt_exponential' makes the Voigt spring nonlinear; "
+         "the FE simulator's material is linear (the analysis fits this form)"),
     ],
     ids=["tactile-rows-0", "tactile-cols-0", "fewer-columns-than-segments", "fewer-columns-than-markers-cols",
          "depth-at-height", "one-marker-row", "one-marker-column", "unknown-name", "uniaxial-bonded-bottom",
-         "uniaxial-bonded-top", "uniaxial-one-marker-column"],
+         "uniaxial-bonded-top", "uniaxial-one-marker-column", "nonlinear-spring-in-the-simulator"],
 )
 def test_bad_setup_is_refused_in_one_line_naming_the_field(body, message):
     with pytest.raises(ParamsError) as err:

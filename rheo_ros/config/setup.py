@@ -277,6 +277,9 @@ class Setup:
                 out.append(effect_class(effect_id, form)(**values))
             except (TypeError, KeyError) as exc:
                 raise ParamsError(f"effects.{effect_id}: {exc}") from None
+            if out[-1].nonlinear_spring:
+                raise ParamsError(f"effects.{effect_id}.form: {out[-1].form!r} makes the Voigt spring nonlinear; "
+                                  f"the FE simulator's material is linear (the analysis fits this form)")
         return tuple(out)
 
     def model(self) -> Model:

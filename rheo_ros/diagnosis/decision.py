@@ -152,6 +152,12 @@ def _excess(chi: float, n: int) -> float:
     return (chi - n) / np.sqrt(2.0 * n) if n else 0.0
 
 
+def phase_excess(fit: ModelFit, phases: Sequence[str]) -> float:
+    """How far ``fit`` misfits over ``phases``: its chi-square's excess over the noise,
+    in standard deviations of that chi-square (above ``EXCESS_SIGMAS``: a misfit)."""
+    return _excess(*fit.phase_chi2(phases))
+
+
 def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))

@@ -12,9 +12,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, Candidate, Diagnosis, judge
+from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_SIGMAS, Candidate, Diagnosis, judge, phase_excess
 from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import ModelFit, add_effect, polish, restart_from_corrected
+from rheo_ros.experiment import PHASES
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import catalogue, effect_class, effect_forms
@@ -23,22 +24,16 @@ from rheo_ros.record import Record
 Progress = Callable[[str], None]
 
 
+# A family's other forms are fitted where its default lowers the BIC decisively and by
+# at least this share of what the round's best default achieves: a family far behind the
+# leader does not overtake it by a change of form, and an idle form (a second relaxation
+# arm on data with none) can cost tens of seconds of fitting.
+FORM_SHARE = 0.1
+
+
 def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
-               noise: SensorNoise) -> Candidate:
-    """Fit ``current`` + the effect and judge it: its default form, then, where the data
-    ask for the family (the default lowers the BIC decisively), its other forms. The
-    family's candidate is its best form by BIC among those that earn their parameters,
-    else its best form by BIC."""
-    tried = [_try_form(record, forward, current, effect_id, noise, None)]
-    if tried[0].delta_bic < -BIC_DECISIVE:
-        tried += [_try_form(record, forward, current, effect_id, noise, cls.form)
-                  for cls in effect_forms(effect_id)[1:]]
-    eligible = [c for c in tried if c.eligible]
-    return min(eligible or tried, key=lambda c: c.delta_bic)
-
-
-def _try_form(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str, noise: SensorNoise,
-              form: str | None) -> Candidate:
+               noise: SensorNoise, form: str | None = None) -> Candidate:
+    """Fit ``current`` + the effect in ``form`` (default: the family's default) and judge it."""
     try:
         best = add_effect(record, forward, current, effect_id, noise, form)
     except Exception as exc:  # a user's effect may fail in any way: it loses, the diagnosis goes on
@@ -48,35 +43,71 @@ def _try_form(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_
     return judge(current, best, effect_id)
 
 
+def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[str, str]]:
+    """(effect id, form) of the other forms worth fitting after the families' defaults:
+    those of each family whose default lowers the BIC decisively and by at least
+    ``FORM_SHARE`` of the best default's drop, where ``current`` misfits in the phases the
+    form shows in (elsewhere no form can earn its parameters: ``decision.judge``)."""
+    drops = [c.delta_bic for c in defaults if np.isfinite(c.delta_bic)]
+    if not drops:
+        return []
+    bar = min(-BIC_DECISIVE, FORM_SHARE * min(drops))
+    return [(c.effect, cls.form) for c in defaults if c.delta_bic <= bar for cls in effect_forms(c.effect)[1:]
+            if phase_excess(current, cls.shows_in or PHASES) > EXCESS_SIGMAS]
+
+
+def best_form(tried: Sequence[Candidate]) -> Candidate:
+    """A family's candidate: its best form by BIC among those that earn their
+    parameters, else its best form by BIC."""
+    eligible = [c for c in tried if c.eligible]
+    return min(eligible or tried, key=lambda c: c.delta_bic)
+
+
 def default_workers() -> int:
     """Processes for the candidates' fits: one per core, at most four."""
     return max(1, min(4, len(os.sched_getaffinity(0))))
+
+
+def _fit_all(record: Record, forward: QuasiStaticFE, current: ModelFit, jobs: Sequence[tuple[str, str | None]],
+             noise: SensorNoise, progress: Progress | None, workers: int) -> list[Candidate]:
+    """``try_effect`` for each (effect id, form), in ``workers`` processes; in job order."""
+    def label(job: tuple[str, str | None]) -> str:
+        return f"{current.name}+{job[0]}" + (f" ({job[1]} form)" if job[1] else "")
+
+    if min(workers, len(jobs)) <= 1:
+        out = []
+        for i, job in enumerate(jobs):
+            if progress:
+                progress(f"trying {label(job)} ({i + 1}/{len(jobs)})")
+            out.append(try_effect(record, forward, current, job[0], noise, job[1]))
+        return out
+    results: dict[int, Candidate] = {}
+    # fork: the children inherit the effects the user registered in this process.
+    with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("fork")) as pool:
+        futures = {pool.submit(try_effect, record, forward, current, e, noise, f): i for i, (e, f) in enumerate(jobs)}
+        for n, future in enumerate(as_completed(futures)):
+            results[futures[future]] = future.result()
+            if progress:
+                progress(f"tried {label(jobs[futures[future]])} ({n + 1}/{len(jobs)})")
+    return [results[i] for i in range(len(jobs))]
 
 
 def diagnose(record: Record, forward: QuasiStaticFE, current: ModelFit,
              candidates: Sequence[str] | None = None, noise: SensorNoise | None = None,
              progress: Progress | None = None, workers: int | None = None) -> Diagnosis:
     """Try each candidate effect not yet in ``current`` and decide what, if anything, is
-    missing. The candidates are fitted in ``workers`` processes (default: one per core;
-    1: in this process); each fit is deterministic, so the verdict does not depend on it."""
+    missing: every family's default form first, then the other forms of the families the
+    data ask for (``other_forms``); each family is judged by its best form (``best_form``).
+    The fits run in ``workers`` processes (default: one per core; 1: in this process);
+    each fit is deterministic, so the verdict does not depend on it."""
     noise = noise or sensor_noise(record)
     have = set(current.effects)
     ids = [e for e in (candidates if candidates is not None else catalogue()) if e not in have]
-    workers = min(workers or default_workers(), max(len(ids), 1))
-    tried: list[Candidate] = []
-    if workers == 1:
-        for i, effect_id in enumerate(ids):
-            if progress:
-                progress(f"trying {current.name}+{effect_id} ({i + 1}/{len(ids)})")
-            tried.append(try_effect(record, forward, current, effect_id, noise))
-    else:
-        # fork: the children inherit the effects the user registered in this process.
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-            jobs = {pool.submit(try_effect, record, forward, current, e, noise): e for e in ids}
-            for i, job in enumerate(as_completed(jobs)):
-                tried.append(job.result())
-                if progress:
-                    progress(f"tried {current.name}+{jobs[job]} ({i + 1}/{len(ids)})")
+    workers = workers or default_workers()
+    defaults = _fit_all(record, forward, current, [(e, None) for e in ids], noise, progress, workers)
+    more = other_forms(current, defaults)
+    forms = _fit_all(record, forward, current, more, noise, progress, workers)
+    tried = [best_form([d, *(c for (e, _), c in zip(more, forms) if e == d.effect)]) for d in defaults]
     tried.sort(key=lambda c: (c.delta_bic, c.effect))
     eligible = [c for c in tried if c.eligible]
     undecided: tuple[str, ...] = ()

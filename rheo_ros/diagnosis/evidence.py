@@ -36,7 +36,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
     phase, ratio, windows = _worst_phase(current)
     head = (f"{current.name}: total force RMS {current.rmse_force:.3g} N over the record")
     if phase:
-        head += f"; worst in the {phase} phase at {ratio:.3g} x the sensor noise{_windows_text(windows)}"
+        head += f"; worst in the {phase} phase at {ratio:.3g} x the noise{_windows_text(windows)}"
     parts = [head + "."]
     by_id = {c.effect: c for c in tried}
     if missing:

@@ -33,7 +33,7 @@ from scipy.sparse.linalg import splu
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh
 from rheo_ros.models.effects import Model, Release
-from rheo_ros.models.response import respond, stage_program
+from rheo_ros.models.response import respond, respond_voigt_spring, stage_program
 
 
 @dataclass(frozen=True)
@@ -229,7 +229,9 @@ class QuasiStaticFE:
         t_let_go = np.nextafter(profile.t_keep_end, -np.inf)
         t = np.concatenate([force_t, marker_t, [t_let_go]])
         order = np.argsort(t, kind="stable")
-        r = respond(model.rheology(), stage_program(profile), t[order])
+        spring = model.voigt_spring
+        r = (respond(model.rheology(), stage_program(profile), t[order]) if spring is None else
+             respond_voigt_spring(model.rheology(), spring, self.mesh.height, stage_program(profile), t[order]))
         stress, depth = np.empty_like(t), np.empty_like(t)
         stress[order], depth[order] = r.stress, r.strain
         nf, nm = len(force_t), len(marker_t)

@@ -8,6 +8,9 @@ a hook, so the base elements and the FE model never learn about it:
 - ``material(element)``: a structural change of the rheology (an extra arm);
 - ``stress_scale(strain)``: a factor on the specimen's stress that depends on its
   current nominal strain (a nonlinear elastic response);
+- ``voigt_spring(strain)``: the base's Voigt spring made nonlinear (its stress per
+  unit E at its own nominal strain); the response is then integrated numerically
+  (``response.respond_voigt_spring``), and the FE simulator, linear, does not take it;
 - ``measured_force(t, force, release)``: what reaches the sensor besides the
   specimen's stress (adhesion, drift), given when the stage let go (``Release``).
   It needs no history, so a streaming simulator calls it sample by sample.
@@ -29,7 +32,7 @@ which phases show it (``shows_in``), which of its parameters may take either sig
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from importlib.metadata import entry_points
 from typing import ClassVar, TypeVar
@@ -126,6 +129,15 @@ class Effect:
     def stress_scale(self, strain: np.ndarray) -> np.ndarray:
         """Factor on the stress at nominal compressive strain ``strain`` (depth / height)."""
         return np.ones_like(strain)
+
+    def voigt_spring(self, strain: np.ndarray) -> np.ndarray:
+        """The Voigt spring's stress per unit E at its nominal strain (linear: the strain)."""
+        return strain
+
+    @property
+    def nonlinear_spring(self) -> bool:
+        """Whether this effect makes the Voigt spring nonlinear (overrides ``voigt_spring``)."""
+        return type(self).voigt_spring is not Effect.voigt_spring
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         """``force``: (T, nodes) in N at times ``t`` (s) -> the nodal forces the sensor
@@ -426,6 +438,49 @@ class ExponentialStiffening(StrainStiffening):
         return np.exp(self.coefficient * np.maximum(strain, 0.0))
 
 
+@register_effect
+@dataclass(frozen=True)
+class PowerLawStiffening(StrainStiffening):
+    """The stress grows as a power of strain: stress x (strain / ``REFERENCE``)^``coefficient``,
+    a stress ~ strain^(1 + coefficient) (Hertz-like contact, soft tissue: stiffness from
+    nothing at first touch). E is the modulus at ``REFERENCE`` strain."""
+
+    form: ClassVar[str] = "power_law"
+    REFERENCE: ClassVar[float] = 0.1   # the strain at which E is the secant modulus
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        return (cls(0.5),)
+
+    def describe(self) -> str:
+        return f"stress x (strain / {self.REFERENCE:g})^{self.coefficient:.3g}"
+
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        return (np.maximum(strain, 0.0) / self.REFERENCE) ** self.coefficient
+
+
+@register_effect
+@dataclass(frozen=True)
+class VoigtSpringStiffening(StrainStiffening):
+    """The Voigt spring alone stiffens: its stress is E (exp(``coefficient`` eps_v) - 1) /
+    ``coefficient`` at its own strain eps_v; the dashpots stay linear. Unlike a factor on
+    the whole stress, it stiffens what the spring carries: the creep the keep shows and
+    the recovery after release, not the viscous share of the pull."""
+
+    form: ClassVar[str] = "voigt_exponential"
+
+    def describe(self) -> str:
+        return f"Voigt spring E (exp({self.coefficient:.3g} x strain) - 1) / {self.coefficient:.3g}"
+
+    def stress_scale(self, strain: np.ndarray) -> np.ndarray:
+        return np.ones_like(strain)   # not the linear form's factor: the spring alone stiffens
+
+    def voigt_spring(self, strain: np.ndarray) -> np.ndarray:
+        if abs(self.coefficient) < 1e-9:
+            return strain * (1.0 + 0.5 * self.coefficient * strain)
+        return np.expm1(self.coefficient * strain) / self.coefficient
+
+
 @dataclass(frozen=True)
 class Model:
     """A base element with effects; ``name`` is ``base+effect+...`` as in the JSON report."""
@@ -449,6 +504,14 @@ class Model:
         for effect in self.effects:
             scale = scale * effect.stress_scale(strain)
         return scale
+
+    @property
+    def voigt_spring(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """The Voigt spring's law where an effect makes it nonlinear (one at most), else None."""
+        springs = [e for e in self.effects if e.nonlinear_spring]
+        if len(springs) > 1:
+            raise ValueError(f"two effects make the Voigt spring nonlinear: {', '.join(e.id for e in springs)}")
+        return springs[0].voigt_spring if springs else None
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         for effect in self.effects:

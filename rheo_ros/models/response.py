@@ -16,15 +16,17 @@ frequency ``Q`` grows at most like a dashpot, ``c*s``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
+from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
 from rheo_ros.experiment import StageProfile
-from rheo_ros.models.elements import Element
+from rheo_ros.models.elements import Dashpot, Element, Parallel, Series, Spring
 
 
 @dataclass(frozen=True)
@@ -215,3 +217,119 @@ def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
         raise ValueError("element cannot recover freely (no internal state)")
     gain = -(ss.C @ ss.A) / cb
     return ss.A + np.outer(ss.B, gain), gain, -float(ss.C @ x) / cb
+
+
+# The nonlinear response feeds finite-difference Jacobians (steps ~1.5e-8 relative): its
+# integration error must sit far below that, so its parameter dependence is smooth.
+ODE_RTOL = 1e-12
+
+
+def three_element_and_arms(element: Element) -> tuple[tuple[float, float, float], list[tuple[float, float]]]:
+    """``(E, c1, c2)`` of the three-element base and ``(stiffness, viscosity)`` of each
+    Maxwell arm in parallel with it, from ``element`` built as ``three_element(...)``
+    with arms added by ``Parallel``.
+
+    Raises:
+        ValueError: any other network (the nonlinear Voigt spring has no general solver).
+    """
+    parts: list[Element] = []
+    stack = [element]
+    while stack:
+        e = stack.pop()
+        if isinstance(e, Parallel) and not any(isinstance(p, Spring) for p in e.parts):
+            stack.extend(e.parts)
+        else:
+            parts.append(e)
+    base, arms = None, []
+    for e in parts:
+        kinds = [type(p) for p in getattr(e, "parts", ())]
+        if isinstance(e, Series) and kinds == [Spring, Dashpot]:
+            arms.append((e.parts[0].stiffness, e.parts[1].viscosity))
+        elif (isinstance(e, Series) and kinds == [Parallel, Dashpot]
+              and [type(p) for p in e.parts[0].parts] == [Spring, Dashpot] and base is None):
+            voigt_part, dashpot = e.parts
+            base = (voigt_part.parts[0].stiffness, voigt_part.parts[1].viscosity, dashpot.viscosity)
+        else:
+            raise ValueError("a nonlinear Voigt spring needs the three-element base with Maxwell arms in parallel")
+    if base is None:
+        raise ValueError("a nonlinear Voigt spring needs the three-element base")
+    return base, arms
+
+
+def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.ndarray], height: float,
+                         program: Program, t: np.ndarray) -> Response:
+    """As :func:`respond`, with the base's Voigt spring nonlinear: its stress is
+    ``E height spring(u_v / height)`` at Voigt displacement ``u_v`` (``spring(eps)``:
+    stress per unit E at nominal strain, ``eps`` to first order). No closed form exists,
+    so scipy's ``solve_ivp`` (DOP853, ``ODE_RTOL``) integrates the states (Voigt
+    displacement, displacement, each arm's stress) segment by segment.
+
+    Driven: ``sigma3 = (c1 c2 rate + c2 f) / (c1 + c2)``, ``u_v' = (sigma3 - f) / c1``;
+    stress-free: the arms' stress balances the base's, ``sigma3 = -sum(arms)`` and
+    ``u' = ((c1 + c2) sigma3 - c2 f) / (c1 c2)``; each arm ``s_i' = k_i u' - s_i k_i / c_i``.
+    """
+    t = np.asarray(t, dtype=float)
+    if np.any(np.diff(t) < 0):
+        raise ValueError("times must be sorted")
+    (E, c1, c2), arms = three_element_and_arms(element)
+    k = np.array([a[0] for a in arms])
+    rate_k = np.array([a[0] / a[1] for a in arms])
+
+    def voigt_force(uv: float) -> float:
+        return E * height * float(spring(np.array([uv / height]))[0])
+
+    def rhs(_t: float, y: np.ndarray, rate: float | None) -> np.ndarray:
+        uv, arm = y[0], y[2:]
+        f = voigt_force(uv)
+        if rate is None:
+            s3 = -float(arm.sum())
+            du = ((c1 + c2) * s3 - c2 * f) / (c1 * c2)
+        else:
+            s3 = (c1 * c2 * rate + c2 * f) / (c1 + c2)
+            du = rate
+        return np.concatenate([[(s3 - f) / c1, du], k * du - rate_k * arm])
+
+    def total_stress(y: np.ndarray, rate: float | None) -> np.ndarray:
+        if rate is None:
+            return np.zeros(y.shape[1])
+        f = np.array([voigt_force(u) for u in y[0]])
+        return (c1 * c2 * rate + c2 * f) / (c1 + c2) + y[2:].sum(axis=0)
+
+    stress, strain = np.zeros_like(t), np.zeros_like(t)
+    y = np.zeros(2 + len(arms))
+    typical = np.concatenate([[1e-2 * height] * 2, 1e-2 * height * k])   # a 1 % strain, its arm stresses
+    start, let_go, t_release = program.t0, False, None
+    for i, seg in enumerate(program.segments):
+        rate = seg.strain_rate
+        if let_go and rate is not None:
+            raise ValueError("a strain-controlled segment after the drive let go")
+        if rate is None and t_release is None:
+            t_release = start
+        last = i == len(program.segments) - 1
+        end = start + seg.duration
+        inside = (t >= start) & ((t < end) | (last & (t >= end)))
+        stop = max(end if np.isfinite(end) else (t[inside].max() if inside.any() else start), start)
+        events = None
+        if seg.one_sided and rate is not None:
+            if total_stress(y[:, None], rate)[0] <= 0.0:
+                stop, let_go = start, True
+            else:
+                def unloaded(_t: float, yy: np.ndarray, r: float | None) -> float:
+                    return float(total_stress(yy[:, None], r)[0])
+                unloaded.terminal, unloaded.direction = True, -1   # type: ignore[attr-defined]
+                events = unloaded
+        if stop > start:
+            sol = solve_ivp(rhs, (start, stop), y, method="DOP853", rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                            args=(rate,), dense_output=True, events=events)
+            if events is not None and sol.t_events[0].size:
+                stop, let_go = float(sol.t_events[0][0]), True
+                inside &= t < stop
+            ys = sol.sol(t[inside]) if inside.any() else np.zeros((y.size, 0))
+            y = sol.y[:, -1]
+        else:
+            inside &= False
+            ys = np.zeros((y.size, 0))
+        stress[inside] = total_stress(ys, rate) if ys.shape[1] else stress[inside]
+        strain[inside] = ys[1]
+        start = stop if let_go and rate is not None else end
+    return Response(t, stress, strain, t_release)
