@@ -110,11 +110,14 @@ class Effects:
         pressure the free specimen does not carry (tau = inf: a constant stuck layer).
     drift: (a Pa, tau s, spread): each cell's baseline settles as a_j (1 - exp(-t/tau)),
         a_j = a (1 + spread N(0, 1)) drawn per cell from the seed.
+    column_drift: (r Pa/s, spread): each column of cells drifts linearly from t = 0 at its
+        own rate r_c = r (1 + spread N(0, 1)) (a gradient along the array).
     """
     stiffening: float | None = None
     maxwell: tuple[tuple[float, float], ...] = ()
     adhesion: tuple[float, float] | None = None
     drift: tuple[float, float, float] | None = None
+    column_drift: tuple[float, float] | None = None
 
 
 EFFECTS: dict[str, Effects] = {
@@ -287,6 +290,10 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         a, tau, spread = effects.drift
         amp = a * (1.0 + spread * drift_rng.standard_normal(shape[1:]))
         p += amp[None] * (1.0 - np.exp(-tac_t / tau))[:, None, None]
+    if effects.column_drift is not None:
+        r, spread = effects.column_drift
+        rates = r * (1.0 + spread * drift_rng.standard_normal(layout.tactile_cols))
+        p += tac_t[:, None, None] * rates[None, None, :]
     if sensor.noise > 0:
         p += sensor.noise * tac_rng.standard_normal(shape)
     if sensor.floor:

@@ -26,12 +26,13 @@ from rheo_ros.diagnosis.decision import (
 
 class Fit:
     """What ``judge`` reads of a ``ModelFit``: the chi-square per phase, the BIC, the
-    estimate's values and std, the force RMS, the effects' forms."""
+    estimate's values and std, the force RMS, the effects' forms, the signed parameters."""
 
     def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
-                 forms=None):
+                 forms=None, signed=()):
         self.chi, self.bic, self.rmse_force, self.forms = chi, bic, rmse, forms or {}
         self.estimate = SimpleNamespace(params=params or {}, std=std or {})
+        self.model = SimpleNamespace(signed_parameters=tuple(signed))
         self.asked: list[tuple[str, ...]] = []
 
     def phase_chi2(self, phases):
@@ -282,3 +283,29 @@ def test_the_footprint_counts_phases_beyond_five_sd_and_any_effect_of_two_phases
     assert judged(pull=(3000.0, 200.0), keep=(200.0, 300.0)).footprint == {"pull": 1.0}
     c = judged(pull=(3000.0, 200.0), keep=(300.0, 301.0))
     assert c.footprint == {"pull": 1.0, "keep": -np.inf} and not c.significant
+
+
+def test_a_signed_parameter_at_zero_is_a_value_a_positive_one_needs_its_std_within_it():
+    """``undetermined``: a positive parameter needs std <= value (x the limit); signed ones
+    need a finite std each, and one of them away from zero by more than its std."""
+    def fit(params, std, signed=()):
+        return Fit({}, 0.0, params=params, std=std, signed=signed)
+
+    drift = ("sensor_drift.offset", "sensor_drift.rate")
+    # A drift with no offset and a clear rate: determined (was "not determined" before).
+    ok = fit({"sensor_drift.offset": 1e-5, "sensor_drift.rate": 2e-3}, {"sensor_drift.offset": 1e-4,
+             "sensor_drift.rate": 1e-5}, drift)
+    assert decision.undetermined(ok, "sensor_drift") == []
+    # Both at zero within their std: both listed; an infinite std: both listed.
+    flat = fit({"sensor_drift.offset": 1e-5, "sensor_drift.rate": 1e-6}, {"sensor_drift.offset": 1e-4,
+               "sensor_drift.rate": 1e-5}, drift)
+    assert decision.undetermined(flat, "sensor_drift") == list(drift)
+    inf = fit({"sensor_drift.offset": 1e-5, "sensor_drift.rate": 2e-3}, {"sensor_drift.offset": np.inf,
+              "sensor_drift.rate": 1e-5}, drift)
+    assert decision.undetermined(inf, "sensor_drift") == list(drift)
+    # The boundary: std == limit x value is determined, just above it is not.
+    assert decision.undetermined(fit({"a.k": 2.0}, {"a.k": 1.0}), "a", 0.5) == []
+    assert decision.undetermined(fit({"a.k": 2.0}, {"a.k": 1.0 + 1e-12}), "a", 0.5) == ["a.k"]
+    # Only the effect's own parameters, positive ones judged alone.
+    mixed = fit({"E": 1.0, "a.k": 1.0, "a.s": 0.0}, {"E": 9.0, "a.k": 2.0, "a.s": 0.5}, ("a.s",))
+    assert decision.undetermined(mixed, "a") == ["a.k", "a.s"]

@@ -333,6 +333,7 @@ def test_a_release_cut_short_by_silence_gets_its_final_estimate_and_diagnosis(tm
         (verdict,) = verdicts
         assert "cut short" in verdict["evidence"]
         assert verdict["missing_effects"] == list(diagnoses[0].missing_effects)
+        assert verdict["forms"] == dict(zip(diagnoses[0].missing_effects, diagnoses[0].forms))
         np.testing.assert_allclose(list(verdict["params"].values()), diagnoses[0].values, rtol=1e-9)
     finally:
         g.close()

@@ -132,7 +132,7 @@ def test_on_a_bag_the_package_did_not_make_the_node_diagnoses_what_rheo_analyze_
     assert online.missing_effects == tuple(report["diagnosis"]["missing_effects"]) == ("strain_stiffening",)
     assert online.adequate is report["diagnosis"]["adequate"] is True
     assert report["models"][-1]["forms"] == {"strain_stiffening": "voigt_exponential"}
-    assert "voigt_exponential form" in online.evidence
+    assert online.forms == ("voigt_exponential",) and "voigt_exponential form" in online.evidence
     last = report["models"][-1]
     for name, value in zip(online.names, online.values):
         assert value == pytest.approx(last["params"][name], rel=SAME), name

@@ -63,6 +63,8 @@ class Candidate:
             parameter run to the edge of its search means the effect vanished or degenerated).
         note: why the fit failed, where it did.
         form: the effect's form that fits best (``models.effects``: a family of forms).
+        alternatives: the family's other forms that earn their parameters and fit
+            nearly as well (``discover.best_form``): refined too before one is added.
     """
 
     effect: str
@@ -77,6 +79,7 @@ class Candidate:
     note: str = ""
     form: str = ""
     footprint: dict[str, float] = field(default_factory=dict)
+    alternatives: tuple[Candidate, ...] = ()
 
     @property
     def eligible(self) -> bool:
@@ -152,6 +155,22 @@ def _excess(chi: float, n: int) -> float:
     return (chi - n) / np.sqrt(2.0 * n) if n else 0.0
 
 
+def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMINED_STD) -> list[str]:
+    """The effect's parameters in ``fit`` that the data do not pin down. A positive one
+    (fitted on a log scale) needs a finite std within ``relative_limit`` of its value: run
+    off to a bound, it has a std but no value. A signed one has no bound and zero is one
+    of its values (a drift with no offset): it needs a finite std, and the signed ones
+    together need one of them away from zero by more than that, else all are listed."""
+    values, std = fit.estimate.params, fit.estimate.std
+    own = [k for k in values if k.startswith(effect_id + ".")]
+    signed = [k for k in own if k in set(fit.model.signed_parameters)]
+    out = [k for k in own if k not in signed and not is_determined(values[k], std[k], relative_limit)]
+    if signed and (not all(np.isfinite(std[k]) for k in signed)
+                   or not any(is_determined(values[k], std[k], relative_limit) for k in signed)):
+        out += signed
+    return out
+
+
 def phase_excess(fit: ModelFit, phases: Sequence[str]) -> float:
     """How far ``fit`` misfits over ``phases``: its chi-square's excess over the noise,
     in standard deviations of that chi-square (above ``EXCESS_SIGMAS``: a misfit)."""
@@ -176,8 +195,7 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
             footprint[phase] = -np.inf
     significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED
                        and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
-    std, values = with_effect.estimate.std, with_effect.estimate.params
     # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
-    determined = all(is_determined(values[k], std[k], DETERMINED_STD) for k in values if k.startswith(effect_id + "."))
+    determined = not undetermined(with_effect, effect_id)
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
                      float(explained), significant, determined, form=cls.form, footprint=footprint)

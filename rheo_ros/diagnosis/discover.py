@@ -29,6 +29,10 @@ Progress = Callable[[str], None]
 # leader does not overtake it by a change of form, and an idle form (a second relaxation
 # arm on data with none) can cost tens of seconds of fitting.
 FORM_SHARE = 0.1
+# Forms whose screening BIC drops are within this share of each other are refined before
+# one is named (a linear drift's screening fit left c2 25 x off: a per-segment one beat
+# it by 0.015 % of the drop, and lost once both converged).
+FORM_WINDOW = 0.05
 
 
 def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
@@ -58,9 +62,25 @@ def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[
 
 def best_form(tried: Sequence[Candidate]) -> Candidate:
     """A family's candidate: its best form by BIC among those that earn their
-    parameters, else its best form by BIC."""
+    parameters, else its best form by BIC. The other eligible forms within
+    ``FORM_WINDOW`` of it ride along (``alternatives``): the screening fits stop after a
+    few iterations, so forms that close are told apart only once refined."""
     eligible = [c for c in tried if c.eligible]
-    return min(eligible or tried, key=lambda c: c.delta_bic)
+    best = min(eligible or tried, key=lambda c: c.delta_bic)
+    window = max(BIC_DECISIVE, FORM_WINDOW * abs(best.delta_bic))
+    close = tuple(c for c in eligible if c is not best and c.delta_bic - best.delta_bic < window)
+    return replace(best, alternatives=close)
+
+
+def refine(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorNoise) -> ModelFit:
+    """A screening fit taken to convergence: from where it stopped and, for sensor-side
+    effects, from a closed form on the readings with their share taken out
+    (``restart_from_corrected``); the better polished (discretisation std included)."""
+    fits = [fit]
+    restarted = restart_from_corrected(record, forward, fit, noise)
+    if restarted is not None:
+        fits.append(restarted)
+    return polish(record, forward, min(fits, key=lambda f: f.cost), noise)
 
 
 def default_workers() -> int:
@@ -143,12 +163,10 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
             return models, verdicts
         winner = next(c for c in verdict.candidates if c.effect == verdict.missing_effect)
         if progress:
-            progress(f"refining {winner.fit.name}")
-        fits = [winner.fit]
-        restarted = restart_from_corrected(record, forward, winner.fit, noise)
-        if restarted is not None:
-            fits.append(restarted)
-        models.append(polish(record, forward, min(fits, key=lambda f: f.cost), noise))
+            progress(f"refining {winner.fit.name}" + (f" ({len(winner.alternatives) + 1} forms)"
+                                                      if winner.alternatives else ""))
+        models.append(min((refine(record, forward, c.fit, noise) for c in (winner, *winner.alternatives)),
+                          key=lambda f: f.bic))
         # The verdict quotes the model as it is added (refitted to convergence), not its screening fit.
         tried = [judge(models[-2], models[-1], c.effect) if c is winner else c for c in verdict.candidates]
         verdicts[-1] = replace(verdict, candidates=tuple(tried), evidence=evidence_text(

@@ -7,9 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, DETERMINED_STD, EXCESS_EXPLAINED, EXCESS_SIGMAS, Candidate
+from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_EXPLAINED, EXCESS_SIGMAS, Candidate, undetermined
 from rheo_ros.diagnosis.fits import ModelFit
-from rheo_ros.identification.pipeline import is_determined
 from rheo_ros.models.effects import effect_class
 
 
@@ -50,9 +49,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
             f"Adding {missing} ({effect.form} form: {effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
             f"{current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows}) and removes "
             f"{100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
-        std = c.fit.estimate.std
-        loose = [k for k, v in std.items() if k.startswith(missing + ".")
-                 and not is_determined(c.fit.estimate.params[k], v, 0.5)]
+        loose = undetermined(c.fit, missing, 0.5)
         if loose:
             names = " and ".join(k.split(".", 1)[1] for k in loose)
             verb, them = ("is", "it") if len(loose) == 1 else ("are", "them")
@@ -65,9 +62,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         if len(rivals) > 1 and all(c.determined for c in rivals):
             why = f"they explain the misfit within {BIC_DECISIVE:g} of each other in BIC"
         else:
-            why = "the data do not bound " + ", ".join(
-                k for c in rivals for k, v in c.fit.estimate.std.items()
-                if k.startswith(c.effect + ".") and not is_determined(c.fit.estimate.params[k], v, DETERMINED_STD))
+            why = "the data do not bound " + ", ".join(k for c in rivals for k in undetermined(c.fit, c.effect))
         parts.append(f"The data cannot decide: {listed}; {why}. To decide, record "
                      + "; or ".join(effect_class(c.effect).resolving_experiment for c in rivals) + ".")
     else:

@@ -398,6 +398,124 @@ class SettlingDrift(Effect):
         return force + (self.offset + self.amplitude * settled)[:, None] * shares[None]
 
 
+class PerSegmentEffect(Effect):
+    """Base of effects with one value per tactile segment: each tuple field named in
+    ``per_segment`` (field -> parameter stem) is fitted as ``<stem>_P<j>``, one per
+    segment, signed (a baseline may move either way); the other fields are fitted as
+    usual (positive unless in ``signed_scalars``). The tuples' length is the layout's:
+    ``starts`` builds them from the residual's segments."""
+
+    per_segment: ClassVar[dict[str, str]] = {}
+    signed_scalars: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def signed(self) -> tuple[str, ...]:   # type: ignore[override]
+        return (*self._segment_names(), *self.signed_scalars)
+
+    def _segment_names(self) -> list[str]:
+        return [f"{stem}_P{j + 1}" for name, stem in self.per_segment.items()
+                for j in range(len(getattr(self, name)))]
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        values = [v for name in self.per_segment for v in getattr(self, name)]
+        out = {f"{self.id}.{n}": float(v) for n, v in zip(self._segment_names(), values)}
+        scalars = {f"{self.id}.{f.name}": float(getattr(self, f.name)) for f in fields(self)
+                   if f.name not in self.per_segment and f.metadata.get("parameter", True)}
+        return out | scalars
+
+    def with_parameters(self, values: Mapping[str, float]) -> Effect:
+        new = {k.split(".", 1)[1]: float(values.get(k, v)) for k, v in self.parameters.items()}
+        tuples = {name: tuple(new.pop(f"{stem}_P{j + 1}") for j in range(len(getattr(self, name))))
+                  for name, stem in self.per_segment.items()}
+        return replace(self, **tuples, **new)
+
+
+def _quiet_lines(context: FitContext) -> tuple[list[float], list[float]]:
+    """Each segment's line (offset N, rate N/s) through its residual where nothing
+    presses (before contact, after release); the pooled line (the linear form's start)
+    where a segment has too few quiet readings of its own."""
+    t, prof = context.force_t, context.profile
+    nodes = context.residual.shape[1]
+    pooled = SensorDrift.starts(context)[-1]
+    quiet = ((t < prof.t_pull_start) | (t > prof.t_keep_end))[:, None] & context.live
+    offsets, rates = [pooled.offset] * nodes, [pooled.rate] * nodes
+    for j in range(nodes):
+        tj = t[quiet[:, j]]
+        if tj.size >= 10 and np.ptp(tj) > 0:
+            rates[j], offsets[j] = (float(v) for v in np.polyfit(tj, context.residual[quiet[:, j], j], 1))
+    return offsets, rates
+
+
+class _DriftPerSegment(PerSegmentEffect):
+    """What the per-segment drift forms share with their family."""
+
+    id: ClassVar[str] = "sensor_drift"
+    shows_in: ClassVar[tuple[str, ...]] = SensorDrift.shows_in
+    resolving_experiment: ClassVar[str] = SensorDrift.resolving_experiment
+
+
+@register_effect
+@dataclass(frozen=True)
+class SegmentDrift(_DriftPerSegment):
+    """Each tactile segment's own baseline: ``offsets[j] + rates[j] t`` (N, N/s) on
+    segment j from t = 0 (a segment whose cells warm or creep apart from the others).
+    Its parameters are ``offset_P<j>`` and ``rate_P<j>``, one pair per segment."""
+
+    form: ClassVar[str] = "per_segment"
+    per_segment: ClassVar[dict[str, str]] = {"offsets": "offset", "rates": "rate"}
+    offsets: tuple[float, ...] = ()
+    rates: tuple[float, ...] = ()
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        offsets, rates = _quiet_lines(context)
+        return (cls(tuple(offsets), tuple(rates)),)
+
+    def describe(self) -> str:
+        return ("tactile offsets of " + ", ".join(f"{o:.3g}" for o in self.offsets) + " N drifting by "
+                + ", ".join(f"{r:.3g}" for r in self.rates) + " N/s (P1, P2, ...)")
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        t = np.asarray(t)[:, None]
+        return force + np.asarray(self.offsets)[None] + np.asarray(self.rates)[None] * t
+
+
+@register_effect
+@dataclass(frozen=True)
+class SegmentSettlingDrift(_DriftPerSegment):
+    """Each tactile segment's baseline settles on its own level over one shared time:
+    ``offsets[j] + amplitudes[j] (1 - exp(-t / time))`` (N; cells settling alike but by
+    different amounts). Parameters ``offset_P<j>``, ``amplitude_P<j>`` and ``time``."""
+
+    form: ClassVar[str] = "settling_per_segment"
+    per_segment: ClassVar[dict[str, str]] = {"offsets": "offset", "amplitudes": "amplitude"}
+    offsets: tuple[float, ...] = ()
+    amplitudes: tuple[float, ...] = ()
+    time: float = 1.0
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        # The settling form's starts with its level shared out by the cells, and each
+        # segment's quiet line read as a settling over a third of the record.
+        out = []
+        for e in SettlingDrift.starts(context):
+            shares = np.ones(context.residual.shape[1]) if e.shares is None else np.asarray(e.shares)
+            out.append(cls(tuple((e.offset * shares).tolist()), tuple((e.amplitude * shares).tolist()), e.time))
+        offsets, rates = _quiet_lines(context)
+        span = 0.3 * max(context.profile.t_end, 1.0)
+        out.append(cls(tuple(offsets), tuple(r * span for r in rates), span))
+        return tuple(out)
+
+    def describe(self) -> str:
+        return ("tactile offsets of " + ", ".join(f"{o:.3g}" for o in self.offsets) + " N settling by "
+                + ", ".join(f"{a:.3g}" for a in self.amplitudes) + f" N (P1, P2, ...) over {self.time:.3g} s")
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        settled = -np.expm1(-np.maximum(np.asarray(t), 0.0) / self.time)[:, None]
+        return force + np.asarray(self.offsets)[None] + np.asarray(self.amplitudes)[None] * settled
+
+
 @register_effect
 @dataclass(frozen=True)
 class HeldAdhesion(Effect):

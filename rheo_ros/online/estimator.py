@@ -96,8 +96,8 @@ class Update:
 @dataclass(frozen=True)
 class OnlineDiagnosis:
     """The model-discovery loop's verdict on one push (``/rheo/diagnosis``): the models
-    fitted in order (the base first) with their force RMS (N) and BIC, the candidates
-    tried on the base with their BIC change, and the last model's parameters."""
+    fitted in order (the base first) with their force RMS (N) and BIC, the form of each
+    missing effect, the candidates tried on the base with their BIC change, and the last model's parameters."""
 
     experiment: int
     stamp: float
@@ -105,6 +105,7 @@ class OnlineDiagnosis:
     missing_effects: tuple[str, ...]
     undecided: tuple[str, ...]
     models: tuple[str, ...]
+    forms: tuple[str, ...]
     rmse_force: np.ndarray
     bic: np.ndarray
     candidates: tuple[str, ...]
@@ -122,6 +123,7 @@ class OnlineDiagnosis:
             experiment=experiment, stamp=stamp, adequate=bool(verdict.adequate),
             missing_effects=verdict.missing_effects, undecided=verdict.undecided,
             models=tuple(m.name for m in models),
+            forms=tuple(models[-1].forms.get(e, "") for e in verdict.missing_effects),
             rmse_force=np.array([m.rmse_force for m in models]), bic=np.array([m.bic for m in models]),
             candidates=tuple(c.effect for c in verdict.candidates),
             delta_bic=np.array([c.delta_bic for c in verdict.candidates]),
