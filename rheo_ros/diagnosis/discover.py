@@ -14,7 +14,7 @@ import numpy as np
 
 from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_SIGMAS, Candidate, Diagnosis, judge, phase_excess
 from rheo_ros.diagnosis.evidence import evidence_text
-from rheo_ros.diagnosis.fits import ModelFit, add_effect, polish, restart_from_corrected
+from rheo_ros.diagnosis.fits import ModelFit, add_effect, fit_model, polish, restart_from_corrected
 from rheo_ros.experiment import PHASES
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
@@ -81,6 +81,20 @@ def refine(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorN
     if restarted is not None:
         fits.append(restarted)
     return polish(record, forward, min(fits, key=lambda f: f.cost), noise)
+
+
+def refine_forms(record: Record, forward: QuasiStaticFE, winner: Candidate, noise: SensorNoise) -> ModelFit:
+    """The model to add for ``winner``: its screening fit refined (``refine``); each close
+    form (``Candidate.alternatives``) fitted again from the refined base parameters (a
+    screening fit may stop far off, the base is shared) and, where its BIC then beats
+    the refined one even before convergence, polished and taken instead."""
+    best = refine(record, forward, winner.fit, noise)
+    for other in winner.alternatives:
+        base = {k: best.estimate.params[k] for k in ("E", "c1", "c2", "gamma")}
+        trial = fit_model(record, forward, other.fit.model.effects, base, noise)
+        if trial.bic < best.bic:
+            best = polish(record, forward, trial, noise)
+    return best
 
 
 def default_workers() -> int:
@@ -165,8 +179,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
         if progress:
             progress(f"refining {winner.fit.name}" + (f" ({len(winner.alternatives) + 1} forms)"
                                                       if winner.alternatives else ""))
-        models.append(min((refine(record, forward, c.fit, noise) for c in (winner, *winner.alternatives)),
-                          key=lambda f: f.bic))
+        models.append(refine_forms(record, forward, winner, noise))
         # The verdict quotes the model as it is added (refitted to convergence), not its screening fit.
         tried = [judge(models[-2], models[-1], c.effect) if c is winner else c for c in verdict.candidates]
         verdicts[-1] = replace(verdict, candidates=tuple(tried), evidence=evidence_text(
