@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -382,6 +382,118 @@ def generate(out_dir: str | Path, *, material: Material = Material(), effects: E
     truth = Truth(GENERATOR_ID, seed, material, effects, sensor, profile, layout, profile.knots)
     out.with_name(out.name + ".truth.json").write_text(truth.to_json())
     return out
+
+
+
+# --- the diagnosis bench's protocol (rheo bench diagnosis --generator test/generator.py) ---
+# Families in the package's vocabulary (names only: nothing is imported from rheo_ros).
+BENCH_FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
+BENCH_SENSORS = tuple(name for name in SENSORS if SENSORS[name].noise > 0)   # a size needs a noise
+BENCH_KEEP, BENCH_RELEASE = (15.0, 40.0), (20.0, 40.0)
+BENCH_QUICK_KEEP, BENCH_QUICK_RELEASE = (15.0, 18.0), (20.0, 24.0)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def bench_effect(rng: np.random.Generator, family: str, material: Material, profile: Profile,
+                 height: float) -> tuple[str, dict[str, Any], dict[str, float]]:
+    """One hidden effect of ``family`` by this generator's laws, from barely detectable to
+    large: the package's name of its form, the ``Effects`` fields it sets, its values.
+
+    relaxation_branch: one Maxwell arm (form one_arm) or two (two_arms), each of
+    stiffness 0.3 %..50 % of E, times within the keep; strain_stiffening: the Voigt
+    spring's exponential law (voigt_exponential), k 0.05..10; adhesion: p0 0.2 %..40 %
+    of the elastic stress at full depth, fading over 10..300 s (fading) or held (held);
+    sensor_drift: every cell settling alike by a = +-3..600 Pa over 3 s..half the record
+    (settling), or each cell by its own amount, spread 0.2..0.5 (settling_per_segment: the
+    segments' sums differ), or each column drifting linearly at +-0.02..4 Pa/s, spread
+    0.3..1 (per_segment)."""
+    E, keep = material.E, profile.keep_time
+    if family == "relaxation_branch":
+        two = rng.random() < 0.5
+        spans = ((1.0, keep / 6), (keep / 4, keep / 2)) if two else ((1.0, keep / 3),)
+        arms = tuple((_log_uniform(rng, 0.003, 0.5) * E, float(rng.uniform(*span))) for span in spans)
+        return ("two_arms" if two else "one_arm"), {"maxwell": arms}, \
+            {f"{k}_{i + 1}": v for i, arm in enumerate(arms) for k, v in zip(("E", "tau"), arm)}
+    if family == "strain_stiffening":
+        k = _log_uniform(rng, 0.05, 10.0)
+        return "voigt_exponential", {"stiffening": k}, {"k": k}
+    if family == "adhesion":
+        p0 = _log_uniform(rng, 0.002, 0.4) * E * profile.depth / height
+        if rng.random() < 0.5:
+            return "held", {"adhesion": (p0, math.inf)}, {"p0": p0}
+        tau = _log_uniform(rng, 10.0, 300.0)
+        return "fading", {"adhesion": (p0, tau)}, {"p0": p0, "tau": tau}
+    if family == "sensor_drift":
+        law = int(rng.integers(3))
+        sign = 1.0 if rng.random() < 0.5 else -1.0
+        if law == 2:   # each column its own line
+            r, spread = sign * _log_uniform(rng, 0.02, 4.0), float(rng.uniform(0.3, 1.0))
+            return "per_segment", {"column_drift": (r, spread)}, {"r": r, "spread": spread}
+        a = sign * _log_uniform(rng, 3.0, 600.0)
+        tau = _log_uniform(rng, 3.0, profile.knots[3] / 2)
+        spread = 0.0 if law == 0 else float(rng.uniform(0.2, 0.5))   # every cell alike, or each its own
+        return ("settling" if law == 0 else "settling_per_segment"), {"drift": (a, tau, spread)}, \
+            {"a": a, "tau": tau, "spread": spread}
+    raise KeyError(family)
+
+
+def _total_force(images: np.ndarray, layout: Layout) -> np.ndarray:
+    """The bottom's total force (N) of tactile images (T, rows, cols) in Pa."""
+    cell = layout.width / layout.tactile_cols * layout.thickness
+    return images.astype(float).sum(axis=(1, 2)) * cell
+
+
+def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int, profile: Profile,
+                layout: Layout) -> dict[str, float]:
+    """The size of ``effects``: the RMS of their change of the noise-free total force over
+    the std of the total force's noise; ``size_live`` through the sensor's floor, dead
+    band and saturation (the same chain, noise-free and unquantised)."""
+    noise_std = math.sqrt(layout.tactile_rows * layout.tactile_cols) * sensor.noise \
+        * layout.width / layout.tactile_cols * layout.thickness
+    raw = Sensor("raw", noise=0.0, floor=False, marker_noise=0.0)
+    readable = replace(sensor, noise=0.0, resolution=0.0, marker_noise=0.0)
+    out = {}
+    for key, chain in (("size", raw), ("size_live", readable)):
+        a, b = (_total_force(synthesize(material, e, chain, seed, profile, layout).images, layout)
+                for e in (effects, Effects()))
+        out[key] = float(np.sqrt(np.mean((a - b) ** 2)) / noise_std)
+    return out
+
+
+def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
+              quick: bool = False) -> dict[str, Any]:
+    """The diagnosis bench's protocol (``rheo bench diagnosis --generator test/generator.py``):
+    draw bag ``index`` from ``rng``, write it at ``out_dir`` (its .truth.json and
+    .params.yaml beside it) and return its truth in the package's vocabulary.
+
+    Draws: E log-uniform 1e4..1e5 Pa, c1 / E 2..15 s, c2 / E 300..3000 s, gamma
+    0.2..0.45; depth 5..12 mm, keep 15..40 s, release 20..40 s (quick: 15..18, 20..24 s);
+    a sensor of ``SENSORS`` but the noise-free one, its noises times ``noise_scale``;
+    ``index mod 3`` hidden effects of distinct families (``bench_effect``)."""
+    E = _log_uniform(rng, 1e4, 1e5)
+    material = Material(E=E, c1=E * float(rng.uniform(2.0, 15.0)), c2=E * float(rng.uniform(300.0, 3000.0)),
+                        gamma=float(rng.uniform(0.2, 0.45)))
+    keep, release = (BENCH_QUICK_KEEP, BENCH_QUICK_RELEASE) if quick else (BENCH_KEEP, BENCH_RELEASE)
+    profile = Profile(depth=float(rng.uniform(0.005, 0.012)), keep_time=float(rng.uniform(*keep)),
+                      release_time=float(rng.uniform(*release)))
+    base = SENSORS[str(rng.choice(BENCH_SENSORS))]
+    sensor = replace(base, noise=base.noise * noise_scale, marker_noise=base.marker_noise * noise_scale)
+    layout, seed = Layout(), int(rng.integers(0, 2**31 - 1))
+    drawn = [(family, *bench_effect(rng, family, material, profile, layout.height))
+             for family in rng.choice(BENCH_FAMILIES, size=index % 3, replace=False)]
+    hidden = [{"effect": str(family), "form": form, "params": values,
+               **bench_sizes(material, Effects(**fields), sensor, seed, profile, layout)}
+              for family, form, fields, values in drawn]
+    effects = Effects(**{k: v for _, _, fields, _ in drawn for k, v in fields.items()})
+    generate(out_dir, material=material, effects=effects, sensor=sensor, seed=seed, profile=profile, layout=layout)
+    return {"hidden": hidden, **bench_sizes(material, effects, sensor, seed, profile, layout),
+            "params_file": str(out_dir.with_name(out_dir.name + ".params.yaml")),
+            "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name, "noise": sensor.noise,
+                     "marker_noise": sensor.marker_noise, "material": asdict(material),
+                     "depth": profile.depth, "keep_time": profile.keep_time, "release_time": profile.release_time}}
 
 
 def main(argv: list[str] | None = None) -> None:

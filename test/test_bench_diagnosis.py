@@ -1,64 +1,165 @@
-"""``rheo bench diagnosis``: the result's structure on three short bags, and the
-threshold scan on made-up rows."""
+"""``rheo bench diagnosis``: one quick bag from the package's simulator, two from the
+independent generator (test/generator.py, loaded from its file as ``--generator`` does),
+and the scoring on made-up rows: exact sets, thresholds per family and form, false
+claims on clean bags, the plot."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rheo_ros.bench import diagnosis
 
+GENERATOR = Path(__file__).with_name("generator.py")
 
-def test_two_quick_bags_give_a_complete_confusion_table():
-    # Bags cycle through the classes: 0 is clean, 1 carries a hidden effect.
-    result = diagnosis.run(replicates=2, seed=4, quick=True)
+
+def _check_row(row):
+    assert row["outcome"] in diagnosis.OUTCOMES and row["outcome"] != "failed", row["message"]
+    assert row["seconds"] > 0 and row["make_seconds"] > 0
+    for h in [row, *row["hidden"]]:
+        assert np.isfinite(h["size"]) and 0 <= h["size_live"] <= h["size"] * 1.5 + 1e-12
+    assert np.isfinite(row["force_rms_to_noise"]) and row["force_rms_to_noise"] > 0
+
+
+def test_a_quick_simulator_bag_with_a_relaxation_branch_is_named_with_its_form(tmp_path):
+    # Seed 17, bag 1: one hidden effect (1 mod 3), a large Maxwell arm; a uniaxial block
+    # (the quickest to simulate).
+    row = diagnosis.run_bag(diagnosis.simulator_bag, 1, np.random.default_rng((17, 1)), tmp_path, quick=True)
+    _check_row(row)
+    assert [(h["effect"], h["form"]) for h in row["hidden"]] == [("relaxation_branch", "one_arm")]
+    assert set(row["hidden"][0]["params"]) == {"stiffness", "viscosity"}
+    assert row["info"]["geometry"] == "uniaxial"
+    assert diagnosis.QUICK_KEEP[0] <= row["info"]["stage.keep_time"] <= diagnosis.QUICK_KEEP[1]
+    assert row["size_live"] > 3
+    assert row["named"] == ["relaxation_branch"] and row["outcome"] == "exact", row["evidence"]
+    assert row["forms"] == {"relaxation_branch": "one_arm"}
+    assert list(tmp_path.iterdir()) == []   # the bag is deleted
+
+
+def test_two_quick_generator_bags_score_a_clean_bag_and_a_named_adhesion(tmp_path):
+    plot = tmp_path / "accuracy.png"
+    result = diagnosis.run(replicates=2, seed=5, quick=True, generator=str(GENERATOR), plot=str(plot))
+    assert result["source"].startswith("test/generator.py") and result["target"] == 0.95
     bags = result["bags"]
-    assert [b["true"] for b in bags] == ["none", "relaxation_branch"]
-    assert set(result["confusion"]) == set(diagnosis.CLASSES)
-    for counts in result["confusion"].values():
-        assert set(counts) == set(diagnosis.COLUMNS)
-    assert sum(sum(c.values()) for c in result["confusion"].values()) == 2
-    for b in bags:
-        assert b["diagnosed"] in diagnosis.COLUMNS, b["message"]
-        assert b["diagnosed"] != "failed", b["message"]
-        assert b["seconds"] > 0 and b["simulate_seconds"] > 0
-        assert np.isfinite(b["size"]) and 0 <= b["size_live"] <= b["size"] * 1.5 + 1e-12
-        assert diagnosis.QUICK_KEEP[0] <= b["params"]["stage.keep_time"] <= diagnosis.QUICK_KEEP[1]
-    assert bags[0]["size"] == 0.0 and bags[0]["effect"] == {}
-    assert bags[1]["size"] > 0 and set(bags[1]["effect"]) == {"stiffness", "viscosity"}
-    assert result["clean_bags"] == 1
-    # The clean bag is called clean, the hidden relaxation branch named (seed 4, quick bags).
-    assert [b["diagnosed"] for b in bags] == ["none", "relaxation_branch"], [b["message"] for b in bags]
-    assert result["false_claims_on_clean"] == 0
-    assert result["seconds_median"] <= result["seconds_max"]
+    for row in bags:
+        _check_row(row)
+    assert bags[0]["hidden"] == [] and bags[0]["size"] == 0.0
+    assert [(h["effect"], h["form"]) for h in bags[1]["hidden"]] == [("adhesion", "fading")]
+    assert [b["outcome"] for b in bags] == ["exact", "exact"], [b["evidence"] for b in bags]
+    assert bags[1]["forms"] == {"adhesion": "fading"}
+    assert result["clean_bags"] == 1 and result["false_claims_on_clean"] == 0
+    assert result["clean_fit_within"] == 1
+    assert result["by_hidden"][1]["exact"] == 1 and result["failed"] == 0
+    assert result["thresholds"]["adhesion"]["threshold"] == bags[1]["hidden"][0]["size_live"]
+    assert set(result["thresholds"]) == {"adhesion", "adhesion:fading"}
+    assert result["forms_right"] == result["forms_named"] == 1
     table = diagnosis.format_table(result)
-    assert "detection threshold" in table
-    assert "false claims on clean bags" in table
-    assert set(result["per_effect"]) == {"relaxation_branch"}
+    for text in ("exact-set accuracy", "detection threshold", "adhesion:fading", "false claims 0/1"):
+        assert text in table
+    assert plot.stat().st_size > 0
+    json.dumps(result)   # the JSON the CLI writes
 
 
-def _rows(pairs):
-    return [{"true": t, "diagnosed": d, "size": s, "size_live": s} for t, d, s in pairs]
+def _row(hidden, named=(), undecided=False, forms=None, fit=1.0):
+    """A made-up row: ``hidden`` as (family, form, readable size) triples."""
+    hidden = [{"effect": e, "form": f, "size": s, "size_live": s} for e, f, s in hidden]
+    return {"hidden": hidden, "named": list(named), "forms": forms or {}, "force_rms_to_noise": fit,
+            "size_live": min((h["size_live"] for h in hidden), default=0.0),
+            "outcome": diagnosis.outcome((h["effect"] for h in hidden), named, undecided)}
 
 
-def test_the_threshold_is_the_smallest_size_above_which_98_percent_are_right():
-    rows = _rows([("adhesion", "none", 0.5), ("adhesion", "adhesion", 1.0), ("sensor_drift", "undecided", 2.0),
-                  ("sensor_drift", "sensor_drift", 3.0), ("adhesion", "adhesion", 4.0), ("none", "adhesion", 0.0)])
-    t = diagnosis.detection_threshold(rows)
-    assert t["threshold"] == 3.0 and t["bags_above"] == 2 and t["accuracy_above"] == 1.0
-    assert t["bags_below"] == 3 and t["correct_below"] == 1
-    # One error among 60 above still passes 98 %; the clean bag does not count.
-    many = _rows([("adhesion", "adhesion", float(s)) for s in range(10, 70)] + [("adhesion", "none", 20.5)])
-    assert diagnosis.detection_threshold(many)["threshold"] == 10.0
-    assert diagnosis.detection_threshold(_rows([("adhesion", "none", 5.0)]))["threshold"] is None
-    # Per effect: adhesion alone is right from 1.0 up, drift from 3.0; absent effects are left out.
-    per = diagnosis.per_effect_thresholds(rows)
-    assert set(per) == {"adhesion", "sensor_drift"}
-    assert per["adhesion"]["threshold"] == 1.0 and per["adhesion"]["bags_below"] == 1
-    assert per["sensor_drift"]["threshold"] == 3.0 and per["sensor_drift"]["correct_above"] == 1
-    table = diagnosis.confusion(rows)
-    assert table["adhesion"]["adhesion"] == 2 and table["none"]["adhesion"] == 1
-    assert sum(sum(c.values()) for c in table.values()) == len(rows)
+def test_the_outcome_is_exact_only_for_the_hidden_set():
+    assert diagnosis.outcome([], []) == "exact"
+    assert diagnosis.outcome(["adhesion", "sensor_drift"], ["sensor_drift", "adhesion"]) == "exact"
+    assert diagnosis.outcome(["adhesion", "sensor_drift"], ["adhesion"]) == "missed"
+    assert diagnosis.outcome(["adhesion"], ["adhesion", "sensor_drift"]) == "extra"
+    assert diagnosis.outcome([], ["adhesion"]) == "extra"
+    assert diagnosis.outcome(["adhesion"], ["adhesion"], undecided=True) == "undecided"
+    assert diagnosis.outcome(["adhesion"], [], failed=True) == "failed"
+
+
+def test_the_threshold_is_the_smallest_size_above_which_the_target_is_exact():
+    items = [(0.5, False), (1.0, True), (2.0, False), (3.0, True), (4.0, True)]
+    t = diagnosis.detection_threshold(items, 0.95)
+    assert t["threshold"] == 3.0 and (t["bags_above"], t["correct_above"]) == (2, 2)
+    assert (t["bags_below"], t["correct_below"]) == (3, 1)
+    # One error among 20 above passes 95 %, not among 10; nothing right: no threshold.
+    many = [(float(s), True) for s in range(10, 29)] + [(20.5, False)]
+    assert diagnosis.detection_threshold(many, 0.95)["threshold"] == 10.0
+    assert diagnosis.detection_threshold(many[10:], 0.95)["threshold"] == 21.0
+    assert diagnosis.detection_threshold([(5.0, False)], 0.9)["threshold"] is None
+
+
+def test_thresholds_per_family_and_form_come_from_single_effect_bags():
+    rows = [_row([("adhesion", "fading", 0.5)]),
+            _row([("adhesion", "fading", 2.0)], ["adhesion"]),
+            _row([("adhesion", "held", 4.0)], ["adhesion"]),
+            _row([("adhesion", "held", 1.0)], ["sensor_drift"]),
+            # Two effects: the drift is missed, but the bag sets no family's threshold.
+            _row([("adhesion", "held", 9.0), ("sensor_drift", "linear", 9.0)], ["adhesion"])]
+    per = diagnosis.thresholds(rows, 0.95)
+    assert set(per) == {"adhesion", "adhesion:fading", "adhesion:held"}
+    assert per["adhesion"]["threshold"] == 2.0 and per["adhesion"]["bags_below"] == 2
+    assert per["adhesion:fading"]["threshold"] == 2.0 and per["adhesion:held"]["threshold"] == 4.0
+
+
+def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
+    rows = [_row([]), _row([], ["sensor_drift"], fit=1.4), _row([], undecided=True),
+            _row([("adhesion", "held", 5.0)], ["adhesion"], forms={"adhesion": "held"}),
+            _row([("adhesion", "fading", 0.1)]),
+            _row([("relaxation_branch", "one_arm", 8.0)], ["relaxation_branch"],
+                 forms={"relaxation_branch": "two_arms"}),
+            _row([("adhesion", "fading", 6.0), ("relaxation_branch", "two_arms", 9.0)],
+                 ["relaxation_branch", "adhesion"], forms={"adhesion": "fading", "relaxation_branch": "two_arms"}),
+            _row([("adhesion", "held", 6.0), ("relaxation_branch", "one_arm", 0.5)], ["adhesion"],
+                 forms={"adhesion": "held"}),
+            {**_row([]), "hidden": None, "outcome": "failed"}]   # the source failed: truth unknown
+    s = diagnosis.score(rows, 0.95)
+    assert s["clean_bags"] == 3 and s["false_claims_on_clean"] == 1 and s["undecided_on_clean"] == 1
+    assert s["clean_fit_within"] == 2 and s["clean_fit_max"] == 1.4
+    assert [s["by_hidden"][n]["bags"] for n in (0, 1, 2)] == [3, 3, 2] and s["failed"] == 1
+    assert s["thresholds"]["adhesion"]["threshold"] == 5.0
+    assert s["thresholds"]["relaxation_branch"]["threshold"] == 8.0
+    # Above: the held adhesion, the arm and the first pair (both effects above); below: the
+    # faint adhesion and the pair whose arm is faint.
+    assert (s["above"]["bags"], s["above"]["exact"]) == (3, 3)
+    assert (s["below"]["bags"], s["below"]["exact"]) == (2, 0)
+    assert s["threshold_weakest"]["threshold"] == 5.0
+    # Forms of the named hidden effects: the one-arm branch named as two arms is the one wrong.
+    assert (s["forms_right"], s["forms_named"]) == (4, 5)
+    assert s["forms"]["relaxation_branch"]["one_arm"] == {"two_arms": 1}
+
+
+def test_the_accuracy_curves_bin_by_size_and_the_plot_is_written(tmp_path):
+    rows = [_row([("adhesion", "held", s)], ["adhesion"] if s > 2 else []) for s in (0.0, 0.5, 1.0, 3.0, 10.0, 30.0)]
+    rows.append(_row([("adhesion", "held", 4.0), ("sensor_drift", "linear", 20.0)], ["adhesion", "sensor_drift"]))
+    curves = diagnosis.accuracy_curves(rows, bins=4)
+    assert set(curves) == {"adhesion", "two effects (weakest)"}
+    assert sum(n for _, _, n in curves["adhesion"]) == 5   # the unreadable one left out
+    assert curves["adhesion"][0][0] == pytest.approx(np.sqrt(0.5 * 1.0))   # the bin's bags' geometric mean
+    assert curves["adhesion"][0][1] == 0.0 and curves["adhesion"][-1][1] == 1.0
+    result = {"bags": rows, "target": 0.9, "source": "made up", "replicates": len(rows), "noise_scale": 2.0}
+    diagnosis.plot_accuracy(result, tmp_path / "a.svg")
+    assert (tmp_path / "a.svg").read_text().lstrip().startswith("<?xml")
+
+
+def test_sources_are_checked_against_the_catalogue(tmp_path):
+    assert "voigt_exponential" not in diagnosis.simulator_forms("strain_stiffening")
+    assert [len(diagnosis.draw_families(np.random.default_rng(0), i)) for i in range(6)] == [0, 1, 2, 0, 1, 2]
+    good = {"hidden": [{"effect": "adhesion", "form": "held", "size": 1.0, "size_live": 0.5}], "size": 1.0,
+            "size_live": 0.5}
+    assert diagnosis.check_truth(good, 0) is good
+    with pytest.raises(ValueError, match="bag 3: hidden effect .* no form 'sticky'"):
+        diagnosis.check_truth({**good, "hidden": [{**good["hidden"][0], "form": "sticky"}]}, 3)
+    with pytest.raises(ValueError, match="adhesion hidden twice"):
+        diagnosis.check_truth({**good, "hidden": good["hidden"] * 2}, 0)
+    (tmp_path / "empty.py").write_text("X = 1\n")
+    with pytest.raises(ValueError, match="defines no function bench_bag"):
+        diagnosis.load_source(tmp_path / "empty.py")
+    assert diagnosis.load_source(None) == (diagnosis.SIMULATOR, diagnosis.simulator_bag)
 
 
 if __name__ == "__main__":

@@ -706,3 +706,21 @@ def test_the_markers_floor_with_fewer_markers_than_force_readings():
     floor = fit_record(rec, start(), weights=WEIGHTS).statistics.floor
     misfit = fit_record(continuum(rec), start(), weights=WEIGHTS, discretisation=False).statistics.residual_rms
     assert floor["markers"] == pytest.approx(misfit["markers"], rel=0.1)
+
+
+def test_a_model_whose_forces_overflow_gets_large_residuals_not_nan_or_zero():
+    """A trial law that overflows (inf or NaN forces) must look like the worst fit to the
+    solver, live readings and censored ones alike: OVERFLOW_RESIDUAL noise stds."""
+    from rheo_ros.identification.fit import OVERFLOW_RESIDUAL
+    from rheo_ros.sensors import DeadBand
+
+    rec = with_band(tiny_record(), DeadBand(np.full(3, 1e-7), np.full(3, 1.0)))
+    prob = problem(rec, delays=False, live=rec.force > 1e-6, ceiling=np.full(3, 1e-6))
+    good = prob.predict(TRUTH)
+    for bad in (np.inf, np.nan):
+        force = good.force.copy()
+        force[5:, :] = bad
+        prob.predict = lambda params, f=force: replace(good, force=f)
+        r = prob.residuals(TRUTH)
+        assert np.all(np.isfinite(r))
+        assert np.sum(np.abs(r) == OVERFLOW_RESIDUAL) > 0

@@ -117,3 +117,23 @@ def test_a_stated_dead_band_on_a_clipped_sensor_is_contradicted():
 def test_a_stated_value_the_data_agree_with_is_silent():
     s = record("default_like", stated(noise=110.0)).sensor
     assert s.warnings == ()
+
+
+def test_a_record_saturated_most_of_the_time_still_shows_its_noise():
+    """A stiff specimen on the clipped sensor (4000 Pa): every cell saturated through most
+    of the pull and the keep. A saturated reading has no noise; counted as live, it made
+    the segments' noise 0 and the clean model 1e7 x "the noise" off (the bench's bag 6).
+    Each segment's noise within 35 % of the generator's cell noise in segment units
+    (measured 1-27 %: few readings are clear of saturation, and a segment with some of its
+    cells saturated reads less noise than one with none)."""
+    from rheo_ros.identification.noise import sensor_noise
+
+    data = g.synthesize(material=g.Material(E=76775.0, c1=4.86e5, c2=1.06e8, gamma=0.43), sensor="clipped",
+                        seed=3, profile=g.Profile(depth=0.008, keep_time=16.0, release_time=20.0))
+    rec = Setup(parse_params(CONTRACT_ONLY, "<test>")).record(data.stage_t, data.depth, data.tactile_t,
+                                                               data.images, data.marker_t, data.markers)
+    array = rec.sensor.tactile
+    assert np.mean(data.images >= 4000.0) > 0.4                  # most readings are saturated
+    noise = sensor_noise(rec).force_std
+    expected = CELL_NOISE * np.sqrt(array.cells_per_segment) * array.cell_area
+    np.testing.assert_allclose(noise, expected, rtol=0.35)

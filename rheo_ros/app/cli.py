@@ -24,7 +24,7 @@ def _write_json(path: str | None, data: dict[str, Any]) -> None:
 def _bench(args: argparse.Namespace) -> int:
     """Run ``rheo_ros.bench.<name>``: its ``run(**options)`` figures, printed and as JSON."""
     module = importlib.import_module(f"rheo_ros.bench.{args.bench}")
-    options = {k: getattr(args, k) for k in ("replicates", "seed", "experiments", "rate") if hasattr(args, k)}
+    options = {k: getattr(args, k) for k in args.bench_options}
     result = module.run(**options)
     print(module.format_table(result))
     _write_json(args.json, result)
@@ -186,13 +186,21 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     bench = sub.add_parser("bench", help="benchmarks").add_subparsers(dest="bench", required=True)
 
-    def bench_command(name: str, text: str, **options: tuple[type, float | int, str]) -> None:
-        """``rheo bench NAME``: its options (type, default, help), ``--json``, run by ``_bench``."""
+    def bench_command(name: str, text: str, **options: tuple[type, Any, str]) -> None:
+        """``rheo bench NAME``: its options (type, default, help; ``bool``: a flag, ``str``
+        with default None: a value given or not), ``--json``, run by ``_bench``, which
+        passes each option to the bench's ``run`` under its name (``-`` as ``_``)."""
         b = bench.add_parser(name, help=text)
         for option, (kind, default, what) in options.items():
-            b.add_argument(f"--{option}", type=kind, default=default, help=f"{what} (default {default:g})")
+            flag = f"--{option.replace('_', '-')}"
+            if kind is bool:
+                b.add_argument(flag, dest=option, action="store_true", help=what)
+            elif default is None:
+                b.add_argument(flag, dest=option, type=kind, metavar="PATH" if kind is str else None, help=what)
+            else:
+                b.add_argument(flag, dest=option, type=kind, default=default, help=f"{what} (default {default:g})")
         b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
-        b.set_defaults(func=_bench)
+        b.set_defaults(func=_bench, bench_options=tuple(options))
 
     seed = (int, 0, "random seed")
     bench_command("paper", "reproduce the paper's Tables II-IV with the project's FE model")
@@ -202,9 +210,14 @@ def build_parser() -> argparse.ArgumentParser:
                   experiments=(int, 100, "experiments replayed"), rate=(float, 10.0, "replay speed, x real time"))
     bench_command("calibration", "reported std against the error over noise seeds through the sensor path",
                   replicates=(int, 100, "noise seeds per case"), seed=(int, 0, "first seed"))
-    bench_command("diagnosis", "confusion table of the model-discovery loop over generated bags with random "
-                               "parameters, noise and hidden effects (~40 min for 100)",
-                  replicates=(int, 100, "bags generated"), seed=seed)
+    bench_command("diagnosis", "exact-set accuracy of the model-discovery loop over generated bags hiding 0, 1 or 2 "
+                               "effects, detection thresholds per effect and form, false claims on clean bags",
+                  replicates=(int, 100, "bags generated"), seed=seed,
+                  quick=(bool, False, "short records (keep 15-18 s, release 20-24 s)"),
+                  noise_scale=(float, 1.0, "every noise times this (1: the source's default, 2: twice it)"),
+                  generator=(str, None, "a Python file defining bench_bag(rng, index, out_dir, noise_scale, quick) "
+                                        "(e.g. test/generator.py; default: the package's simulator)"),
+                  plot=(str, None, "also plot exact-set accuracy against effect size into this PNG or SVG file"))
     bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
     bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")

@@ -1,48 +1,77 @@
-"""``rheo bench diagnosis``: the model-discovery loop's confusion table over generated bags.
+"""``rheo bench diagnosis``: how often the model-discovery loop names exactly the effects
+hidden in a bag, against the effects' size, over bags from a pluggable source.
 
-Each bag is a simulator run (dynamic FE on its own finer mesh, the noisy sensor path)
-with parameters drawn from ``numpy.random.default_rng(seed)``:
+**Sources of bags.** A source is a function with the protocol of :data:`BagSource`::
 
-- material: E log-uniform 1e4..1e5 Pa, c1 / E uniform 2..15 s, c2 / E uniform
-  300..3000 s, gamma uniform 0.2..0.45;
-- stage: depth uniform 5..12 mm, keep 15..40 s, release 20..40 s (the brief's ranges
-  are 15..60 and 20..60 s; cut to their shorter part because 5 bags over the full
-  ranges took 50 s each, 84 min for 100, the analysis time growing with the record);
-- sensors: tactile noise uniform 60..150 Pa per cell, marker noise 1e-5..3e-5 m;
-- geometry: ``plane_fe`` (80 %) or ``uniaxial`` (20 %, frictionless faces);
-- hidden effect: bag ``i`` has class ``i mod 5`` of (none, relaxation_branch,
-  adhesion, strain_stiffening, sensor_drift), with a magnitude from barely detectable
-  to large (``draw_effect``).
+    bench_bag(rng, index, out_dir, noise_scale, quick) -> dict
 
-Each bag is analysed by ``analyze`` (every candidate, default workers) as ``rheo
-analyze`` would; the diagnosed class is the first missing effect, ``undecided`` when
-the first diagnosis cannot decide, else ``none``. A bag that cannot be made or read
-counts as ``failed`` with its message.
+It draws the ``index``-th bag from ``rng`` (a ``numpy.random.Generator`` of its own,
+seeded by the bench's seed and the index, so one bag can be made again alone), writes
+it as a rosbag2 directory at ``out_dir`` (which does not exist; files beside it, in its
+parent, are the bench's to delete), with every noise ``noise_scale`` times the
+source's default and, with ``quick``, short records (for tests). It returns the truth:
 
-The **effect size** is independent of the analysis: the RMS over the force readings of
-the change the hidden effect makes in the noise-free total bottom force, over the std
-of the total force's noise (``sqrt(rows cols) x tactile.noise x cell_area``). It is
-computed with the identification's forward model (``QuasiStaticFE.predict``) and the
-true parameters, with and without the effect, not with a second simulator run: the
-simulator's noise-free run costs about as much as the analysis (measured: 20-40 s of a
-bag's 40-80 s), while ``predict`` takes 0.04 s and gives the simulator's size within
-0.1 % (checked on one bag of each effect). ``size_live`` is the same with each
-segment's noise-free force through the array's dead band (below ``tactile.threshold``
-per cell it reads zero, and it reads no tension): an adhesion of a few percent, or a
-drift below zero before contact, can be large by ``size`` and still unreadable.
+- ``hidden``: a list of ``{"effect": family id, "form": form, "size": float,
+  "size_live": float, "params": {...}}``, in the package's vocabulary
+  (``rheo_ros.models.effects.catalogue`` and ``effect_forms``), empty for a clean bag;
+  ``size`` and ``size_live`` are that effect's alone (below);
+- ``size``, ``size_live``: the same for all the hidden effects together;
+- ``params_file``: a parameters file to analyse with, or None (the bag's own);
+- ``info``: anything else worth keeping in the JSON (material, sensor, ...).
 
-The **detection threshold** is the smallest readable effect size ``s`` (``size_live``)
-such that at least 98 % of the bags with an effect of that size or more are diagnosed
-correctly (undecided and failed count as wrong).
+The **effect size** is the RMS over the force readings of the change the hidden effects
+make in the noise-free total bottom force, over the std of the total force's noise
+(``sqrt(cells) x cell noise x cell area``); ``size_live`` is the same through the
+sensor's dead band and floor (what a noise-free sensor would read): an adhesion of a
+few percent, or a drift below zero, can be large by ``size`` and still unreadable.
+
+Two sources exist: the package's simulator (:func:`simulator_bag`, the default) and any
+file given by ``--generator PATH`` that defines ``bench_bag`` (:func:`load_source`;
+``test/generator.py``, which shares no code with rheo_ros, is one). A bag ``i`` hides
+``i mod 3`` effects (0, 1 or 2), of distinct families drawn at random, each in a form
+drawn from those the source makes, with a magnitude from barely detectable to large.
+
+**The package's simulator** (dynamic FE on its own finer mesh, the noisy sensor path)
+draws: E log-uniform 1e4..1e5 Pa, c1 / E uniform 2..15 s, c2 / E uniform 300..3000 s,
+gamma uniform 0.2..0.45; depth uniform 5..12 mm, keep 15..40 s, release 20..40 s (quick:
+15..18 and 20..24 s); tactile noise uniform 60..150 Pa per cell and marker noise
+1e-5..3e-5 m (around the defaults 100 Pa and 2e-5 m), each times ``noise_scale``;
+geometry ``plane_fe`` (80 %) or ``uniaxial`` (20 %). Every form but ``voigt_exponential``
+(the FE simulator's material is linear). Its sizes come from the identification's
+forward model (``QuasiStaticFE.predict``, 0.04 s) with the true parameters, with and
+without the effects, within 0.1 % of the simulator's own noise-free run (checked on one
+bag of each effect) at a fraction of its cost.
+
+**Scoring** (:func:`score`). Each bag is analysed as ``rheo analyze`` does (``analyze``,
+every candidate). Its outcome is ``failed`` (could not be made or read), ``undecided``
+(the loop ended unable to tell effects apart), ``exact`` (the set of effects named,
+``missing_effects``, is the hidden set), ``missed`` (a hidden effect not named, nothing
+extra) or ``extra`` (an effect named that was not hidden). Forms are scored apart: for
+each hidden effect the loop named, the form the final model holds against the hidden one.
+
+The **detection threshold** of a family (and of each form) is the smallest readable size
+(``size_live``) such that at least ``target`` of the single-effect bags of that family
+(form) with an effect that large or larger are ``exact`` (a bag hiding two effects
+depends on both, so it does not set a family's threshold). ``target`` is 95 % at the
+default noise and 90 % at twice it (issue 20). A bag is **above** the thresholds when
+each of its hidden effects is above its family's; exact-set accuracy is reported above
+and below. **Clean bags**: false claims (any effect named) and undecided; and how well
+the final model fits: the RMS of its total-force residual over the readings where every
+segment is live, pooled over the phases, over the total force's noise as the data show
+it (``force_rms_to_noise``, from the analysis's comparison, signal ``total``). Readings
+in the dead band are left out of it: there a model reads zero like the sensor and would
+make the ratio look better than the fit is.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import sys
 import tempfile
 import time
 import traceback
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -53,75 +82,125 @@ from rheo_ros.app.analyze import analyze
 from rheo_ros.config.setup import ParamsError, Setup, check_params
 from rheo_ros.io.bag import write_run
 from rheo_ros.io.errors import BagError
+from rheo_ros.models.effects import Effect, PerSegmentEffect, effect_class, effect_forms
 from rheo_ros.record import RecordError
 from rheo_ros.rig.simulator import simulate_run
 
-EFFECTS = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
-CLASSES = ("none", *EFFECTS)
-COLUMNS = (*CLASSES, "undecided", "failed")
-TARGET = 0.98
+# A source of bags: (rng, index, out_dir, noise_scale, quick) -> truth (module docstring).
+BagSource = Callable[[np.random.Generator, int, Path, float, bool], dict[str, Any]]
+PROTOCOL = "bench_bag"          # the function a --generator file defines
+SIMULATOR = "rheo_ros simulator"
+FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
+OUTCOMES = ("exact", "missed", "extra", "undecided", "failed")
+# Exact-set accuracy wanted above the threshold: at the default noise, and at twice it.
+TARGETS = {1.0: 0.95, 2.0: 0.90}
+FIT_LIMIT = 1.1                 # a clean bag's final force RMS within this x the noise
 # Uniform ranges (s) of the keep and of the release: full runs, and quick ones for tests.
 KEEP, RELEASE = (15.0, 40.0), (20.0, 40.0)
 QUICK_KEEP, QUICK_RELEASE = (15.0, 18.0), (20.0, 24.0)
 
 
-def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+def log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """A draw uniform in log between ``lo`` and ``hi`` (magnitudes over decades)."""
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def draw_effect(rng: np.random.Generator, effect: str, E: float, keep_time: float) -> dict[str, float]:
-    """The hidden effect's parameters, from barely detectable to large."""
-    if effect == "relaxation_branch":
-        stiffness = _log_uniform(rng, 0.003, 0.5) * E
-        return {"stiffness": stiffness, "viscosity": stiffness * float(rng.uniform(1.0, keep_time / 3))}
-    if effect == "adhesion":
-        return {"fraction": _log_uniform(rng, 0.002, 0.4), "time": _log_uniform(rng, 10.0, 300.0)}
-    if effect == "strain_stiffening":
-        return {"coefficient": _log_uniform(rng, 0.02, 6.0)}
-    if effect == "sensor_drift":
+def default_target(noise_scale: float) -> float:
+    """The issue's exact-set target at this noise: 95 % at the default, 90 % at twice it."""
+    return TARGETS[1.0] if noise_scale <= 1.0 else TARGETS[2.0]
+
+
+# --- the package's simulator as a source -------------------------------------------
+
+def simulator_forms(family: str) -> tuple[str, ...]:
+    """The forms of ``family`` the FE simulator can hide: its material is linear (no form
+    that makes the Voigt spring nonlinear), and the parameters file sets one number per
+    field (no per-segment form, whose fields follow the layout)."""
+    return tuple(c.form for c in effect_forms(family)
+                 if c.voigt_spring is Effect.voigt_spring and not issubclass(c, PerSegmentEffect))
+
+
+def draw_families(rng: np.random.Generator, index: int) -> list[str]:
+    """The families bag ``index`` hides: ``index mod 3`` of them, distinct, at random."""
+    count = index % 3
+    return [str(f) for f in rng.choice(FAMILIES, size=count, replace=False)]
+
+
+def draw_effect(rng: np.random.Generator, family: str, form: str, E: float, keep_time: float) -> dict[str, float]:
+    """The simulator's hidden effect's parameters (its fields, ``effects.<id>.<name>``),
+    from barely detectable to large."""
+    if family == "relaxation_branch":
+        arms = [_arm(rng, E, 1.0, keep_time / 3)] if form == "one_arm" else \
+            [_arm(rng, E, 1.0, keep_time / 6), _arm(rng, E, keep_time / 4, keep_time / 2)]
+        names = (("stiffness", "viscosity"), ("stiffness_2", "viscosity_2"))
+        return {n: v for (ns, arm) in zip(names, arms) for n, v in zip(ns, arm)}
+    if family == "adhesion":
+        fraction = log_uniform(rng, 0.002, 0.4)
+        return {"fraction": fraction} if form == "held" else {"fraction": fraction,
+                                                              "time": log_uniform(rng, 10.0, 300.0)}
+    if family == "strain_stiffening":
+        return {"coefficient": log_uniform(rng, 0.02, 1.5 if form == "power_law" else 6.0)}
+    if family == "sensor_drift":
         sign = 1.0 if rng.random() < 0.5 else -1.0
-        return {"offset": float(rng.uniform(0.0, 0.3)), "rate": sign * _log_uniform(rng, 1e-5, 3e-3)}
-    raise KeyError(effect)
+        offset = float(rng.uniform(0.0, 0.3))
+        if form == "settling":
+            return {"offset": offset, "amplitude": sign * log_uniform(rng, 0.003, 0.3),
+                    "time": log_uniform(rng, 3.0, 60.0)}
+        return {"offset": offset, "rate": sign * log_uniform(rng, 1e-5, 3e-3)}
+    raise KeyError(family)
 
 
-def draw_bag(rng: np.random.Generator, index: int, quick: bool = False) -> tuple[str, dict[str, Any], int]:
-    """The ``index``-th bag's true class, its parameters (flat, unchecked) and simulator seed.
+def _arm(rng: np.random.Generator, E: float, t_lo: float, t_hi: float) -> tuple[float, float]:
+    """A Maxwell arm: stiffness log-uniform 0.3 %..50 % of E, relaxation time uniform in range."""
+    stiffness = log_uniform(rng, 0.003, 0.5) * E
+    return stiffness, stiffness * float(rng.uniform(t_lo, t_hi))
 
-    ``quick``: the shortest records of the ranges (keep 15-18 s, release 20-24 s)."""
-    E = _log_uniform(rng, 1e4, 1e5)
-    keep = float(rng.uniform(*(QUICK_KEEP if quick else KEEP)))
-    params: dict[str, Any] = {
+
+def draw_params(rng: np.random.Generator, noise_scale: float, quick: bool) -> dict[str, Any]:
+    """A simulator bag's parameters without effects (flat, unchecked; module docstring)."""
+    E = log_uniform(rng, 1e4, 1e5)
+    return {
         "geometry": "uniaxial" if rng.random() < 0.2 else "plane_fe",
         "material.E": E,
         "material.c1": E * float(rng.uniform(2.0, 15.0)),
         "material.c2": E * float(rng.uniform(300.0, 3000.0)),
         "material.gamma": float(rng.uniform(0.2, 0.45)),
         "stage.depth": float(rng.uniform(0.005, 0.012)),
-        "stage.keep_time": keep,
+        "stage.keep_time": float(rng.uniform(*(QUICK_KEEP if quick else KEEP))),
         "stage.release_time": float(rng.uniform(*(QUICK_RELEASE if quick else RELEASE))),
-        "tactile.noise": float(rng.uniform(60.0, 150.0)),
-        "markers.noise": float(rng.uniform(1e-5, 3e-5)),
+        "tactile.noise": noise_scale * float(rng.uniform(60.0, 150.0)),
+        "markers.noise": noise_scale * float(rng.uniform(1e-5, 3e-5)),
     }
-    true = CLASSES[index % len(CLASSES)]
-    if true != "none":
-        params["simulator.effects"] = [true]
-        params |= {f"effects.{true}.{k}": v for k, v in draw_effect(rng, true, E, keep).items()}
-    seed = int(rng.integers(0, 2**31 - 1))
-    return true, params, seed
 
 
-def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray) -> dict[str, float]:
-    """The hidden effects' size at the force readings ``force_t``: the RMS of their change
-    of the noise-free total bottom force (the forward model with the true parameters)
-    over the total force's noise std; ``size_live``: the same with each segment's
-    force through the dead band (zero below ``tactile.threshold`` per cell)."""
-    if not setup.effect_ids:
+def draw_bag(rng: np.random.Generator, index: int, noise_scale: float = 1.0, quick: bool = False
+             ) -> tuple[list[dict[str, Any]], dict[str, Any], int]:
+    """The ``index``-th simulator bag: its hidden effects (family, form, parameters), its
+    flat parameters (effects included, unchecked) and the simulator's seed."""
+    params = draw_params(rng, noise_scale, quick)
+    hidden = []
+    for family in draw_families(rng, index):
+        form = str(rng.choice(simulator_forms(family)))
+        values = draw_effect(rng, family, form, params["material.E"], params["stage.keep_time"])
+        hidden.append({"effect": family, "form": form, "params": values})
+        params |= {f"effects.{family}.form": form} | {f"effects.{family}.{k}": v for k, v in values.items()}
+    params["simulator.effects"] = [h["effect"] for h in hidden] or [""]
+    return hidden, params, int(rng.integers(0, 2**31 - 1))
+
+
+def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray,
+                effects: Sequence[Effect] | None = None) -> dict[str, float]:
+    """The size of ``effects`` (default: all of ``setup``'s) at the force readings
+    ``force_t``: the RMS of their change of the noise-free total bottom force (the
+    forward model with the true parameters) over the total force's noise std;
+    ``size_live``: the same with each segment's force through the dead band."""
+    model = setup.model()
+    effects = model.effects if effects is None else tuple(effects)
+    if not effects:
         return {"size": 0.0, "size_live": 0.0}
     forward, profile, gamma = setup.forward_model(), setup.profile, setup.gamma
-    model = setup.model()
-    plain = replace(model, effects=())
-    with_effect = forward.predict(model, gamma, profile, force_t, marker_t).force
-    without = forward.predict(plain, gamma, profile, force_t, marker_t).force
+    with_effect = forward.predict(replace(model, effects=effects), gamma, profile, force_t, marker_t).force
+    without = forward.predict(replace(model, effects=()), gamma, profile, force_t, marker_t).force
     tactile = setup.tactile
     noise_std = np.sqrt(tactile.rows * tactile.cols) * tactile.noise * tactile.cell_area
     out = {}
@@ -133,170 +212,359 @@ def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray) -> dict
     return out
 
 
-def make_bag(setup: Setup, seed: int, out: Path) -> dict[str, float]:
-    """Write the bag of ``setup`` (its effects hidden in the data) and return its effect
-    sizes (``effect_size``)."""
+def simulator_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
+                  quick: bool = False) -> dict[str, Any]:
+    """The package's simulator as a bench source (:data:`BagSource`): draw, simulate and
+    write bag ``index`` at ``out_dir``; its truth, each effect's size alone."""
+    hidden, params, seed = draw_bag(rng, index, noise_scale, quick)
+    setup = Setup(check_params(params, f"bag {index}"))
     run = simulate_run(setup, seed)
-    try:
-        write_run(run, {**setup.params, "simulator.seed": seed}, out)
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
-        raise
-    return effect_size(setup, run.tactile_t, run.marker_t)
+    write_run(run, {**setup.params, "simulator.seed": seed}, out_dir)
+    for h, effect in zip(hidden, setup.effects()):
+        h |= effect_size(setup, run.tactile_t, run.marker_t, (effect,))
+    info = {k: v for k, v in params.items() if not k.startswith(("effects.", "simulator."))}
+    return {"hidden": hidden, **effect_size(setup, run.tactile_t, run.marker_t), "params_file": None,
+            "info": info | {"seed": seed}}
 
 
-def diagnosed_class(analysis: Any) -> str:
-    if analysis.missing_effects:
-        return analysis.missing_effects[0]
-    if analysis.diagnoses and analysis.diagnoses[0].undecided:
+# --- any source: loading, checking, running one bag ---------------------------------
+
+def load_source(path: str | Path | None) -> tuple[str, BagSource]:
+    """The bench's source of bags: the package's simulator (``path`` None), or the
+    :data:`PROTOCOL` function of the Python file at ``path`` (loaded by importlib, so the
+    file need not be importable as a package). Its name: the module's ``GENERATOR_ID``,
+    else the path.
+
+    Raises:
+        ValueError: the file cannot be loaded or defines no such function.
+    """
+    if path is None:
+        return SIMULATOR, simulator_bag
+    file = Path(path)
+    name = f"rheo_bench_source_{file.stem}"
+    spec = importlib.util.spec_from_file_location(name, file)
+    if spec is None or spec.loader is None or not file.is_file():
+        raise ValueError(f"{file}: not a Python file to load a bag source from")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module   # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    source = getattr(module, PROTOCOL, None)
+    if not callable(source):
+        raise ValueError(f"{file}: defines no function {PROTOCOL}(rng, index, out_dir, noise_scale, quick)")
+    return str(getattr(module, "GENERATOR_ID", file)), source
+
+
+def check_truth(truth: dict[str, Any], index: int) -> dict[str, Any]:
+    """A source's truth, checked: every hidden family and form is the package's, no
+    family twice, sizes finite and non-negative. Raises ValueError naming the bag."""
+    seen = set()
+    for h in truth["hidden"]:
+        try:
+            effect_class(h["effect"], h["form"])
+        except KeyError as exc:
+            raise ValueError(f"bag {index}: hidden effect {h}: {exc}") from None
+        if h["effect"] in seen:
+            raise ValueError(f"bag {index}: family {h['effect']} hidden twice")
+        seen.add(h["effect"])
+    for item in (truth, *truth["hidden"]):
+        if not all(np.isfinite(item[k]) and item[k] >= 0 for k in ("size", "size_live")):
+            raise ValueError(f"bag {index}: sizes not finite and non-negative: {item}")
+    return truth
+
+
+def force_rms_to_noise(fit: Any) -> float:
+    """The fit's total-force residual RMS over the total force's noise, pooled over the
+    phases (the comparison's ``total`` signal: readings where every segment is live)."""
+    stats = [s for s in fit.comparison.stats if s.signal == "total" and s.samples and s.noise > 0]
+    if not stats:
+        return float("nan")
+    n = np.array([s.samples for s in stats], float)
+    return float(np.sqrt(np.sum(n * np.array([s.rms for s in stats]) ** 2) / n.sum()) / stats[0].noise)
+
+
+def outcome(hidden: Iterable[str], named: Iterable[str], undecided: bool = False, failed: bool = False) -> str:
+    """One of :data:`OUTCOMES` for a bag hiding the families ``hidden`` where the loop
+    named ``named`` (``undecided``: it ended unable to decide; ``failed``: no analysis)."""
+    hidden, named = set(hidden), set(named)
+    if failed:
+        return "failed"
+    if undecided:
         return "undecided"
-    return "none"
+    if named == hidden:
+        return "exact"
+    return "extra" if named - hidden else "missed"
 
 
-def run_bag(index: int, true: str, params: dict[str, Any], seed: int, directory: Path) -> dict[str, Any]:
-    """Make, analyse and delete one bag; its row of the result."""
+def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: Path,
+            noise_scale: float = 1.0, quick: bool = False) -> dict[str, Any]:
+    """Make, analyse and delete one bag; its row of the result (module docstring).
+    ``hidden`` stays None when the source fails: what it hid is not known."""
     row: dict[str, Any] = {
-        "index": index, "true": true, "seed": seed, "geometry": params["geometry"],
-        "params": {k: v for k, v in params.items() if k != "simulator.effects"},
-        "effect": {k.split(".", 2)[2]: v for k, v in params.items() if k.startswith("effects.")},
-        "size": 0.0, "size_live": 0.0, "diagnosed": "failed", "missing_effects": [], "undecided": [],
-        "evidence": "", "simulate_seconds": 0.0, "seconds": 0.0, "message": "",
+        "index": index, "hidden": None, "size": 0.0, "size_live": 0.0, "info": {}, "named": [], "forms": {},
+        "undecided": [], "outcome": "failed", "force_rms_to_noise": None, "evidence": "",
+        "make_seconds": 0.0, "seconds": 0.0, "message": "",
     }
-    out = directory / f"bag{index:04d}"
+    scratch = directory / f"bag{index:04d}"
+    scratch.mkdir()
     try:
         t0 = time.perf_counter()
-        setup = Setup(check_params(params, f"bag {index}"))
-        row |= make_bag(setup, seed, out)
-        row["simulate_seconds"] = time.perf_counter() - t0
+        truth = check_truth(source(rng, index, scratch / "bag", noise_scale, quick), index)
+        row |= {k: truth[k] for k in ("hidden", "size", "size_live")} | {"info": truth.get("info", {})}
+        row["make_seconds"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
-            analysis = analyze(out)
+            analysis = analyze(scratch / "bag", params_file=truth.get("params_file"))
         finally:
             row["seconds"] = time.perf_counter() - t0
-        row["diagnosed"] = diagnosed_class(analysis)
-        row["missing_effects"] = list(analysis.missing_effects)
-        row["undecided"] = list(analysis.diagnoses[0].undecided) if analysis.diagnoses else []
-        row["evidence"] = analysis.diagnoses[0].evidence if analysis.diagnoses else ""
-    except (BagError, RecordError, ParamsError) as exc:
+        undecided = list(analysis.diagnoses[-1].undecided) if analysis.diagnoses else []
+        row |= {"named": list(analysis.missing_effects), "forms": dict(analysis.final.forms),
+                "undecided": undecided, "force_rms_to_noise": force_rms_to_noise(analysis.final),
+                "evidence": " ".join(d.evidence for d in analysis.diagnoses),
+                "outcome": outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided))}
+    except (BagError, RecordError, ParamsError, ValueError) as exc:
         row["message"] = f"{type(exc).__name__}: {exc}"
     except Exception as exc:  # noqa: BLE001 - one bag must not end a long bench
         row["message"] = f"unexpected {type(exc).__name__}: {exc}"
         traceback.print_exc(file=sys.stderr)
     finally:
-        shutil.rmtree(out, ignore_errors=True)
+        shutil.rmtree(scratch, ignore_errors=True)
     return row
 
 
-def confusion(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
-    table = {t: {c: 0 for c in COLUMNS} for t in CLASSES}
-    for r in rows:
-        table[r["true"]][r["diagnosed"]] += 1
-    return table
+# --- scoring ----------------------------------------------------------------------
 
-
-def detection_threshold(rows: list[dict[str, Any]], target: float = TARGET) -> dict[str, Any]:
-    """The smallest readable effect size (``size_live``) above which at least ``target``
-    of the bags with an effect are diagnosed correctly; None when even the largest alone
-    is wrong."""
-    effect = sorted((r for r in rows if r["true"] != "none"), key=lambda r: r["size_live"])
-    correct = np.array([r["diagnosed"] == r["true"] for r in effect], dtype=float)
-    for k in range(len(effect)):
+def detection_threshold(items: Iterable[tuple[float, bool]], target: float) -> dict[str, Any]:
+    """The smallest size ``s`` among ``items`` (size, correct) such that at least
+    ``target`` of the items of size ``s`` or more are correct; None when even the
+    largest alone is wrong. With the counts above and below it."""
+    ordered = sorted(items, key=lambda x: x[0])
+    correct = np.array([c for _, c in ordered], dtype=float)
+    for k in range(len(ordered)):
         above = correct[k:]
         if above.mean() >= target:
-            return {"threshold": effect[k]["size_live"], "bags_above": int(above.size),
-                    "correct_above": int(above.sum()), "accuracy_above": float(above.mean()),
+            return {"threshold": ordered[k][0], "bags_above": int(above.size), "correct_above": int(above.sum()),
                     "bags_below": k, "correct_below": int(correct[:k].sum())}
-    return {"threshold": None, "bags_above": 0, "correct_above": 0, "accuracy_above": None,
-            "bags_below": len(effect), "correct_below": int(correct.sum())}
+    return {"threshold": None, "bags_above": 0, "correct_above": 0,
+            "bags_below": len(ordered), "correct_below": int(correct.sum())}
 
 
-def per_effect_thresholds(rows: list[dict[str, Any]], target: float = TARGET) -> dict[str, dict[str, Any]]:
-    """:func:`detection_threshold` over each hidden effect's bags alone (the effects differ
-    in how much of their size the diagnosis can see)."""
-    return {e: detection_threshold([r for r in rows if r["true"] == e], target)
-            for e in EFFECTS if any(r["true"] == e for r in rows)}
+def thresholds(rows: list[dict[str, Any]], target: float) -> dict[str, dict[str, Any]]:
+    """:func:`detection_threshold` of exact-set correctness against the readable size,
+    over the single-effect bags of each family, and of each form (``family:form``)."""
+    single = [r for r in rows if r["hidden"] and len(r["hidden"]) == 1]
+    groups: dict[str, list[tuple[float, bool]]] = {}
+    for r in single:
+        h = r["hidden"][0]
+        item = (h["size_live"], r["outcome"] == "exact")
+        for key in (h["effect"], f"{h['effect']}:{h['form']}"):
+            groups.setdefault(key, []).append(item)
+    return {key: detection_threshold(items, target) for key, items in sorted(groups.items())}
 
 
-def run(replicates: int = 100, seed: int = 0, quick: bool = False) -> dict[str, Any]:
-    """Generate, analyse and score ``replicates`` bags (module docstring).
+def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]]) -> bool:
+    """Whether each of the bag's hidden effects is at or above its family's threshold."""
+    def above(h: dict[str, Any]) -> bool:
+        th = family_thresholds.get(h["effect"], {}).get("threshold")
+        return th is not None and h["size_live"] >= th
+    return all(above(h) for h in row["hidden"])
 
-    ``quick``: the shortest records of the ranges (for tests)."""
-    rng = np.random.default_rng(seed)
+
+def _accuracy(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Bags, exact among them, and each outcome's count."""
+    counts = {o: sum(r["outcome"] == o for r in rows) for o in OUTCOMES}
+    return {"bags": len(rows), "exact": counts["exact"],
+            "accuracy": counts["exact"] / len(rows) if rows else None, "outcomes": counts}
+
+
+def form_scores(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, int]]]:
+    """For each hidden effect the loop named: family -> hidden form -> named form -> bags."""
+    out: dict[str, dict[str, dict[str, int]]] = {}
+    for r in rows:
+        for h in r["hidden"] or ():
+            if h["effect"] in r["named"]:
+                named = r["forms"].get(h["effect"], "?")
+                counts = out.setdefault(h["effect"], {}).setdefault(h["form"], {})
+                counts[named] = counts.get(named, 0) + 1
+    return out
+
+
+def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
+    """Every figure of the bench from its rows (module docstring); a bag whose source
+    failed (``hidden`` None) counts in ``failed`` alone."""
+    failed = sum(r["outcome"] == "failed" for r in rows)
+    rows = [r for r in rows if r["hidden"] is not None]
+    effect_rows = [r for r in rows if r["hidden"]]
+    clean = [r for r in rows if not r["hidden"] and r["outcome"] != "failed"]
+    per = thresholds(rows, target)
+    families = {k: v for k, v in per.items() if ":" not in k}
+    above = [r for r in effect_rows if above_thresholds(r, families)]
+    below = [r for r in effect_rows if not above_thresholds(r, families)]
+    weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
+    forms = form_scores(rows)
+    fits = [r["force_rms_to_noise"] for r in clean if r["force_rms_to_noise"] is not None
+            and np.isfinite(r["force_rms_to_noise"])]
+    return {
+        "target": target,
+        "by_hidden": {n: _accuracy([r for r in rows if len(r["hidden"]) == n]) for n in (0, 1, 2)},
+        "thresholds": per,
+        "threshold_weakest": detection_threshold(weakest, target),
+        "above": _accuracy(above), "below": _accuracy(below),
+        "forms": forms,
+        "forms_right": sum(c.get(f, 0) for fam in forms.values() for f, c in fam.items()),
+        "forms_named": sum(sum(c.values()) for fam in forms.values() for c in fam.values()),
+        "clean_bags": len(clean),
+        "false_claims_on_clean": sum(bool(r["named"]) for r in clean),
+        "undecided_on_clean": sum(r["outcome"] == "undecided" for r in clean),
+        "clean_fit_median": float(np.median(fits)) if fits else None,
+        "clean_fit_max": float(np.max(fits)) if fits else None,
+        "clean_fit_within": sum(f <= FIT_LIMIT for f in fits),
+        "failed": failed,
+    }
+
+
+def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: float = 1.0,
+        generator: str | None = None, target: float | None = None, plot: str | None = None) -> dict[str, Any]:
+    """Make, analyse and score ``replicates`` bags from the source ``generator`` (a file
+    defining :data:`PROTOCOL`; None: the package's simulator). Bag ``i`` draws from
+    ``default_rng((seed, i))``. ``target``: default by the noise (:func:`default_target`);
+    ``plot``: also write :func:`plot_accuracy` there."""
+    name, source = load_source(generator)
+    target = default_target(noise_scale) if target is None else target
     rows = []
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="rheo-bench-diagnosis-") as tmp:
         for i in range(replicates):
-            true, params, bag_seed = draw_bag(rng, i, quick)
-            row = run_bag(i, true, params, bag_seed, Path(tmp))
+            row = run_bag(source, i, np.random.default_rng((seed, i)), Path(tmp), noise_scale, quick)
             rows.append(row)
-            print(f"bag {i} ({i + 1}/{replicates}): true {true}, size {row['size']:.3g} (readable "
-                  f"{row['size_live']:.3g}), diagnosed {row['diagnosed']}, "
-                  f"{row['simulate_seconds']:.1f} + {row['seconds']:.1f} s"
+            print(f"bag {i} ({i + 1}/{replicates}): hidden {_hidden_text(row)}, size {row['size']:.3g} "
+                  f"(readable {row['size_live']:.3g}), named {'+'.join(row['named']) or 'none'}: {row['outcome']}, "
+                  f"{row['make_seconds']:.1f} + {row['seconds']:.1f} s"
                   + (f" ({row['message']})" if row["message"] else ""), file=sys.stderr, flush=True)
-    seconds = [r["seconds"] for r in rows if r["diagnosed"] != "failed"]
-    clean = [r for r in rows if r["true"] == "none"]
-    return {
-        "replicates": replicates, "seed": seed, "quick": quick, "target": TARGET,
-        "confusion": confusion(rows),
-        **detection_threshold(rows),
-        "per_effect": per_effect_thresholds(rows),
-        "clean_bags": len(clean),
-        "false_claims_on_clean": sum(r["diagnosed"] in EFFECTS for r in clean),
-        "undecided_on_clean": sum(r["diagnosed"] == "undecided" for r in clean),
-        "failed": sum(r["diagnosed"] == "failed" for r in rows),
-        # Bags where the loop went on to add a second effect (only one is ever hidden).
-        "extra_effects": [{"index": r["index"], "true": r["true"], "added": r["missing_effects"]}
-                          for r in rows if len(r["missing_effects"]) > 1],
-        "seconds_median": float(np.median(seconds)) if seconds else None,
-        "seconds_max": float(np.max(seconds)) if seconds else None,
-        "simulate_seconds_median": float(np.median([r["simulate_seconds"] for r in rows])) if rows else None,
+    analysed = [r for r in rows if r["outcome"] != "failed"]
+    result = {
+        "source": name, "generator": generator, "replicates": replicates, "seed": seed, "quick": quick,
+        "noise_scale": noise_scale, **score(rows, target),
+        "seconds_median": float(np.median([r["seconds"] for r in analysed])) if analysed else None,
+        "seconds_max": float(np.max([r["seconds"] for r in analysed])) if analysed else None,
+        "make_seconds_median": float(np.median([r["make_seconds"] for r in rows])) if rows else None,
         "total_seconds": time.perf_counter() - t_start,
         "bags": rows,
     }
+    if plot:
+        plot_accuracy(result, plot)
+        result["plot"] = str(plot)
+    return result
 
 
-def _short(name: str) -> str:
-    return {"relaxation_branch": "relax", "strain_stiffening": "stiffen", "sensor_drift": "drift"}.get(name, name)
+# --- output -----------------------------------------------------------------------
+
+def _hidden_text(row: dict[str, Any]) -> str:
+    if row["hidden"] is None:
+        return "unknown"
+    return "+".join(f"{h['effect']}:{h['form']}" for h in row["hidden"]) or "none"
+
+
+def _fraction(k: int, n: int) -> str:
+    return f"{k}/{n}" + (f" ({100 * k / n:.1f} %)" if n else "")
+
+
+def _threshold_line(key: str, th: dict[str, Any]) -> str:
+    at = "none" if th["threshold"] is None else f"{th['threshold']:.3g}"
+    return (f"  {key:<36} threshold {at:>6}: {th['correct_above']}/{th['bags_above']} exact above, "
+            f"{th['correct_below']}/{th['bags_below']} below")
 
 
 def format_table(result: dict[str, Any]) -> str:
-    lines = [f"diagnosis over {result['replicates']} generated bags (seed {result['seed']}"
-             + (", quick records" if result.get("quick") else "") + "): rows true class, columns diagnosed"]
-    head = f"  {'true':<18}" + "".join(f"{_short(c):>10}" for c in COLUMNS) + f"{'correct':>10}"
-    lines.append(head)
-    for t, counts in result["confusion"].items():
-        n = sum(counts.values())
-        right = f"{counts[t]}/{n}" if n else "-"
-        lines.append(f"  {t:<18}" + "".join(f"{counts[c]:>10}" for c in COLUMNS) + f"{right:>10}")
-    if result["threshold"] is None:
-        lines.append(f"detection threshold: none (no effect size above which {100 * result['target']:.0f} % "
-                     "are diagnosed correctly)")
-    else:
-        lines.append(f"detection threshold: readable effect size {result['threshold']:.3g} x the total-force noise "
-                     f"({100 * result['target']:.0f} % correct above it)")
-        lines.append(f"  accuracy above it: {result['correct_above']}/{result['bags_above']} "
-                     f"({100 * result['accuracy_above']:.1f} %); below it: "
-                     f"{result['correct_below']}/{result['bags_below']}")
-    for effect, th in per_effect_thresholds(result["bags"], result["target"]).items():
-        at = "none" if th["threshold"] is None else f"{th['threshold']:.3g}"
-        lines.append(f"  {effect:<18} threshold {at:>6}: {th['correct_above']}/{th['bags_above']} correct above, "
-                     f"{th['correct_below']}/{th['bags_below']} below")
-    lines.append(f"false claims on clean bags: {result['false_claims_on_clean']}/{result['clean_bags']} "
-                 f"(undecided {result['undecided_on_clean']}); failed bags: {result['failed']}")
-    if result["extra_effects"]:
-        lines.append(f"a second effect added after the first (one is hidden): {len(result['extra_effects'])} bags ("
-                     + "; ".join(f"bag {x['index']}: {'+'.join(x['added'])}" for x in result["extra_effects"]) + ")")
+    """The bench's figures as text (what docs/bench keeps)."""
+    target = 100 * result["target"]
+    lines = [f"diagnosis over {result['replicates']} bags from {result['source']} (seed {result['seed']}, noise x "
+             f"{result['noise_scale']:g}" + (", quick records" if result.get("quick") else "") + ")",
+             "exact-set accuracy (the effects named are the hidden ones, nothing extra) by effects hidden:",
+             f"  {'hidden':<10}{'bags':>6}" + "".join(f"{o:>11}" for o in OUTCOMES) + f"{'accuracy':>11}"]
+    for n, acc in result["by_hidden"].items():
+        share = "-" if acc["accuracy"] is None else f"{100 * acc['accuracy']:.1f} %"
+        lines.append(f"  {n:<10}{acc['bags']:>6}" + "".join(f"{acc['outcomes'][o]:>11}" for o in OUTCOMES)
+                     + f"{share:>11}")
+    lines.append(f"detection threshold (readable size x the total-force noise; {target:.0f} % exact above it; "
+                 "single-effect bags):")
+    lines += [_threshold_line(key, th) for key, th in result["thresholds"].items()]
+    lines.append(_threshold_line("any bag, by its weakest effect", result["threshold_weakest"]))
+    lines.append(f"bags with every effect above its family's threshold: {_fraction(result['above']['exact'], result['above']['bags'])} "
+                 f"exact; below: {_fraction(result['below']['exact'], result['below']['bags'])}")
+    lines.append(f"forms, where the family was named: {_fraction(result['forms_right'], result['forms_named'])} right "
+                 "(" + "; ".join(f"{fam}:{hid} -> " + ", ".join(f"{f} {n}" for f, n in named.items())
+                                 for fam, by in result["forms"].items() for hid, named in by.items()) + ")")
+    lines.append(f"clean bags: false claims {result['false_claims_on_clean']}/{result['clean_bags']}, undecided "
+                 f"{result['undecided_on_clean']}; final force RMS / noise (live readings) "
+                 + ("-" if result["clean_fit_median"] is None else
+                    f"median {result['clean_fit_median']:.3f}, max {result['clean_fit_max']:.3f}, "
+                    f"{result['clean_fit_within']} within {FIT_LIMIT}"))
+    lines.append(f"failed bags: {result['failed']}")
     if result["seconds_median"] is not None:
-        lines.append(f"analysis time per bag: median {result['seconds_median']:.1f} s, max "
-                     f"{result['seconds_max']:.1f} s; simulation median {result['simulate_seconds_median']:.1f} s; "
-                     f"total {result['total_seconds'] / 60:.1f} min")
-    wrong = [r for r in result["bags"] if r["diagnosed"] != r["true"]]
+        lines.append(f"time per bag: analysis median {result['seconds_median']:.1f} s, max {result['seconds_max']:.1f} s; "
+                     f"making median {result['make_seconds_median']:.1f} s; total {result['total_seconds'] / 60:.1f} min")
+    wrong = [r for r in result["bags"] if r["outcome"] != "exact"]
     if wrong:
-        lines.append("misdiagnosed:")
+        lines.append("not exact:")
         for r in sorted(wrong, key=lambda r: -r["size_live"]):
-            effect = ", ".join(f"{k} {v:.3g}" for k, v in r["effect"].items())
-            lines.append(f"  bag {r['index']}: {r['true']} ({effect or 'clean'}; {r['geometry']}, keep "
-                         f"{r['params']['stage.keep_time']:.0f} s) size {r['size']:.3g}, readable {r['size_live']:.3g} -> "
-                         f"{r['diagnosed']}" + (f" [{', '.join(r['undecided'])}]" if r["undecided"] else "")
+            sizes = ", ".join(f"{h['effect']} {h['size_live']:.3g}" for h in r["hidden"] or ())
+            lines.append(f"  bag {r['index']}: {_hidden_text(r)} (readable {sizes or '0'}) -> "
+                         f"{'+'.join(r['named']) or 'none'}: {r['outcome']}"
+                         + (f" [{', '.join(r['undecided'])}]" if r["undecided"] else "")
                          + (f": {r['message']}" if r["message"] else ""))
     return "\n".join(lines)
+
+
+def accuracy_curves(rows: list[dict[str, Any]], bins: int = 8) -> dict[str, list[tuple[float, float, int]]]:
+    """Exact-set accuracy against readable size, binned in log: per family over its
+    single-effect bags (that effect's size), and over the two-effect bags (their weakest
+    effect's). Each curve: (geometric mean size of the bin's bags, accuracy, bags) for
+    the bins with bags. Unreadable effects (size 0) have no place on a log axis: left
+    out (``format_table`` lists them)."""
+    groups: dict[str, list[tuple[float, bool]]] = {}
+    for r in rows:
+        if r["outcome"] == "failed" or not r["hidden"]:   # None (unknown) or clean
+            continue
+        size = min(h["size_live"] for h in r["hidden"])
+        if size > 0:
+            key = r["hidden"][0]["effect"] if len(r["hidden"]) == 1 else "two effects (weakest)"
+            groups.setdefault(key, []).append((size, r["outcome"] == "exact"))
+    if not groups:
+        return {}
+    sizes = [s for items in groups.values() for s, _ in items]
+    edges = np.geomspace(min(sizes) * 0.999, max(sizes) * 1.001, bins + 1)
+    curves = {}
+    for key, items in sorted(groups.items()):
+        s = np.array([x for x, _ in items])
+        ok = np.array([c for _, c in items], float)
+        which = np.digitize(s, edges) - 1
+        curves[key] = [(float(np.exp(np.mean(np.log(s[which == b])))), float(ok[which == b].mean()),
+                        int((which == b).sum())) for b in range(bins) if (which == b).any()]
+    return curves
+
+
+def plot_accuracy(result: dict[str, Any], path: str | Path) -> None:
+    """Exact-set accuracy against readable effect size, per family (``accuracy_curves``),
+    with the issue's 3 x noise and the target; PNG or SVG by ``path``'s suffix (Agg)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FormatStrFormatter
+
+    fig = Figure(figsize=(7.0, 4.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    for key, curve in accuracy_curves(result["bags"]).items():
+        x, y, n = zip(*curve)
+        ax.plot(x, y, marker="o", alpha=0.8, label=f"{key} ({sum(n)} bags)")
+    ax.axvline(3.0, color="grey", linestyle=":", label="3 x noise (target threshold)")
+    ax.axhline(result["target"], color="grey", linestyle="--", label=f"{100 * result['target']:.0f} % target")
+    ax.set_xscale("log")
+    for axis_formatter in (ax.xaxis.set_major_formatter, ax.xaxis.set_minor_formatter):
+        axis_formatter(FormatStrFormatter("%g"))
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_xlabel("readable effect size (x total-force noise std)")
+    ax.set_ylabel("exact-set accuracy")
+    ax.set_title(f"{result['source']}: {result['replicates']} bags, noise x {result['noise_scale']:g}", fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(str(path))

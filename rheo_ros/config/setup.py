@@ -274,7 +274,12 @@ class Setup:
             values = {k[len(prefix):]: v for k, v in self.params.items() if k.startswith(prefix)}
             form = values.pop("form", None)   # effects.<id>.form: one of the family's forms (default: its first)
             try:
-                out.append(effect_class(effect_id, form)(**values))
+                cls = effect_class(effect_id, form)
+                # The table's defaults are the default form's fields: another form (held
+                # adhesion, no time) leaves those it has not; a value set for one is refused.
+                own = {f.name for f in fields(cls)}
+                values = {k: v for k, v in values.items() if k in own or v != DEFAULTS.get(prefix + k, object())}
+                out.append(cls(**values))
             except (TypeError, KeyError) as exc:
                 raise ParamsError(f"effects.{effect_id}: {exc}") from None
             if out[-1].nonlinear_spring:

@@ -235,7 +235,8 @@ class QuasiStaticFE:
         stress, depth = np.empty_like(t), np.empty_like(t)
         stress[order], depth[order] = r.stress, r.strain
         nf, nm = len(force_t), len(marker_t)
-        scaled = stress * model.stress_scale(depth / self.mesh.height)
+        with np.errstate(over="ignore", invalid="ignore"):   # a fit's trial law may overflow: the fit handles it
+            scaled = stress * model.stress_scale(depth / self.mesh.height)
         release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
         force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
         disp = depth[nf : nf + nm, None, None] * shape.displacement[None]

@@ -51,6 +51,7 @@ DISCRETISATION_RATIO = 0.37
 # calibration`: up to 1.06 on ~3000 live readings, 1.17 on a shallow push's few hundred.
 MISFIT_RATIO = 1.25
 MISFIT_SIGMAS = 5.0
+OVERFLOW_RESIDUAL = 1e6   # noise stds: a residual of a model whose forces overflowed
 
 
 def misfit_limit(samples: int) -> float:
@@ -145,8 +146,12 @@ class WholeRecordProblem:
             over = np.maximum(p.force - self.ceiling, 0.0) / self.force_std
             if self.top is not None:   # a saturated reading: the force was at least the top
                 over = np.where(self._force > self.top, np.maximum(self.top - p.force, 0.0) / self.force_std, over)
-            parts.append(np.nan_to_num(over[~self._live]))
-        return np.concatenate(parts)
+            parts.append(over[~self._live])
+        r = np.concatenate(parts)
+        # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
+        # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
+        return r if np.all(np.isfinite(r)) else np.nan_to_num(r, nan=OVERFLOW_RESIDUAL, posinf=OVERFLOW_RESIDUAL,
+                                                                neginf=-OVERFLOW_RESIDUAL)
 
     def group_rms(self, params: dict[str, float]) -> tuple[np.ndarray, float]:
         """Unweighted RMS residual per node's force over its live readings (N; NaN for

@@ -69,8 +69,10 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     force = record.force
     nodes = force.shape[1]
     band = record.dead_band
-    # Live by the threshold alone first, then with the margin the noise found sets.
-    live = np.ones(force.shape, bool) if band is None else force > band.force
+    # Live by the threshold and the saturation alone first (a saturated reading has no
+    # noise: a record at saturation most of the time would show none), then with the
+    # margin the noise found sets.
+    live = np.ones(force.shape, bool) if band is None else (force > band.force) & (force < band.saturation)
     std = np.full(nodes, np.nan)
     counts = np.zeros(nodes, int)
     for _ in range(2 if band is not None else 1):
