@@ -1,5 +1,6 @@
 """Composable elements: exact state-space responses against the paper's closed forms."""
 
+import warnings
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -266,3 +267,9 @@ def test_a_linear_voigt_spring_integrated_gives_the_exact_response():
     assert stiff.stress.max() > 1.05 * respond(base, program, t).stress.max()
     with pytest.raises(ValueError, match="three-element base"):
         respond_voigt_spring(maxwell(1.0, 1.0), lambda eps: eps, 0.08, program, t)
+    # A law the solver cannot follow (a fit's absurd trial): NaN from the segment it failed
+    # in, no exception, no warning (the fit reads it as the worst of fits).
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        broken = respond_voigt_spring(base, lambda eps: np.where(eps > 0.05, np.nan, eps), 0.08, program, t)
+    assert np.isnan(broken.stress[t >= 1.0]).all() and not np.isnan(broken.stress[t < 1.0]).any()

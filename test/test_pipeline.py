@@ -124,7 +124,7 @@ def test_on_a_bag_the_package_did_not_make_the_node_diagnoses_what_rheo_analyze_
     does and names the same effect with the same numbers (measured: equal to the last
     digit; k 4.010, E 33281 Pa against 33300)."""
     bag = generate(tmp_path / "bag", effects="strain_stiffening", seed=2,
-                   profile=Profile(keep_time=15.0, release_time=25.0))
+                   profile=Profile(depth=0.008, keep_time=8.0, release_time=15.0))
     diagnoses: list[OnlineDiagnosis] = []
     final_update(bag, diagnoses, interim=False)
     online = diagnoses[0]

@@ -37,7 +37,8 @@ gamma uniform 0.2..0.45; depth uniform 5..12 mm, keep 15..40 s, release 20..40 s
 15..18 and 20..24 s); tactile noise uniform 60..150 Pa per cell and marker noise
 1e-5..3e-5 m (around the defaults 100 Pa and 2e-5 m), each times ``noise_scale``;
 geometry ``plane_fe`` (80 %) or ``uniaxial`` (20 %). Every form but ``voigt_exponential``
-(the FE simulator's material is linear). Its sizes come from the identification's
+(the FE simulator's material is linear) and the per-segment drifts (a parameters file
+sets one number per field). Its sizes come from the identification's
 forward model (``QuasiStaticFE.predict``, 0.04 s) with the true parameters, with and
 without the effects, within 0.1 % of the simulator's own noise-free run (checked on one
 bag of each effect) at a fraction of its cost.

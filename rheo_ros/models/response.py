@@ -16,6 +16,7 @@ frequency ``Q`` grows at most like a dashpot, ``c*s``).
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -320,8 +321,16 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
                 unloaded.terminal, unloaded.direction = True, -1   # type: ignore[attr-defined]
                 events = unloaded
         if stop > start:
-            sol = solve_ivp(rhs, (start, stop), y, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
-                            args=(rate,), dense_output=True, events=events)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
+                sol = solve_ivp(rhs, (start, stop), y, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                                args=(rate,), dense_output=True, events=events)
+            if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+                # A law the solver cannot follow (a fit's trial of an absurd coefficient):
+                # no response, which the fit reads as the worst of fits.
+                stress[t >= start] = np.nan
+                strain[t >= start] = np.nan
+                return Response(t, stress, strain, t_release)
             if events is not None and sol.t_events[0].size:
                 stop, let_go = float(sol.t_events[0][0]), True
                 inside &= t < stop
