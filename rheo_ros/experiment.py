@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -30,7 +30,14 @@ class StageProfile:
     benches' and tests' noise-free cases rely on it). The package's default experiment
     is the parameters table's ``stage.*`` (``rheo_ros.config.table``, a layer above):
     the same but ``stage.retract_speed`` 0.02 m/s, a stage that can really move
-    (``test_config_table.py`` holds the two together)."""
+    (``test_config_table.py`` holds the two together).
+
+    ``before``: the earlier pushes on the same specimen (single pushes, in order, on the
+    same clock, each done before the next begins). The specimen remembers them (a
+    permanent set, a recovery still under way), so the stage's history is theirs and
+    then this push's: ``depth_at``, ``velocity_at`` and ``knots`` cover it all, the
+    phases are this push's. Depth 0 is where the stage first met the specimen
+    (the contract's ``/stage/joint_states``), for every push."""
 
     depth: float = 0.010
     velocity: float = 0.0005
@@ -38,10 +45,29 @@ class StageProfile:
     start_delay: float = 1.0
     release_time: float = 100.0
     retract_speed: float = np.inf
+    before: tuple[StageProfile, ...] = ()
 
     def __post_init__(self) -> None:
         if min(self.depth, self.velocity, self.retract_speed) <= 0 or min(self.keep_time, self.release_time) < 0:
             raise ValueError("stage profile: depth and speeds must be positive, times non-negative")
+        starts = [p.t_pull_start for p in self.before] + [self.t_pull_start]
+        if any(p.before for p in self.before) or np.any(np.diff(starts) <= 0):
+            raise ValueError("stage profile: earlier pushes must be single pushes, each starting after the last")
+
+    @classmethod
+    def repeated(cls, push: StageProfile, pushes: int, pause: float = 0.0) -> StageProfile:
+        """The last of ``pushes`` pushes like ``push``, each starting ``pause`` s after the
+        last one's ``release_time``, the earlier ones in its ``before``."""
+        if pushes < 1 or pause < 0:
+            raise ValueError("stage profile: at least one push, and a non-negative pause")
+        period = push.t_end - push.t_pull_start + pause
+        single = [replace(push, before=(), start_delay=push.start_delay + k * period) for k in range(pushes)]
+        return replace(single[-1], before=tuple(single[:-1]))
+
+    @property
+    def pushes(self) -> tuple[StageProfile, ...]:
+        """Every push on the specimen, this one last, each on its own."""
+        return (*self.before, replace(self, before=()))
 
     @classmethod
     def from_times(cls, depth: float, pull_time: float, keep_time: float, **kw: float) -> StageProfile:
@@ -76,16 +102,31 @@ class StageProfile:
         )
 
     def depth_at(self, t: np.ndarray) -> np.ndarray:
-        """Commanded stage depth (m, positive into the specimen; back to 0 on release)."""
+        """Commanded stage depth (m, positive into the specimen; back to 0 on release),
+        the earlier pushes' before this one's."""
+        return self._by_push(t, StageProfile._push_depth)
+
+    def velocity_at(self, t: np.ndarray) -> np.ndarray:
+        """Commanded stage velocity (m/s, positive pushing)."""
+        return self._by_push(t, StageProfile._push_velocity)
+
+    def _by_push(self, t: np.ndarray, of_push) -> np.ndarray:
         t = np.asarray(t, dtype=float)
+        out = of_push(self, t)
+        if self.before:
+            pushes = self.pushes
+            which = np.searchsorted([p.t_pull_start for p in pushes], t, side="right") - 1
+            for k, push in enumerate(pushes[:-1]):
+                out = np.where(which == k, of_push(push, t), out)
+        return out
+
+    def _push_depth(self, t: np.ndarray) -> np.ndarray:
         d = np.clip((t - self.t_pull_start) * self.velocity, 0.0, self.depth)
         with np.errstate(invalid="ignore"):
             back = np.maximum(self.depth - self.retract_speed * (t - self.t_keep_end), 0.0)
         return np.where(t >= self.t_keep_end, np.nan_to_num(back), d)
 
-    def velocity_at(self, t: np.ndarray) -> np.ndarray:
-        """Commanded stage velocity (m/s, positive pushing)."""
-        t = np.asarray(t, dtype=float)
+    def _push_velocity(self, t: np.ndarray) -> np.ndarray:
         v = np.where((t >= self.t_pull_start) & (t < self.t_pull_end), self.velocity, 0.0)
         retracting = (t >= self.t_keep_end) & (t < self.t_keep_end + self.depth / self.retract_speed)
         return np.where(retracting, -self.retract_speed, v)
@@ -96,11 +137,10 @@ class StageProfile:
         return self.t_keep_end + self.depth / self.retract_speed
 
     def knots(self) -> list[tuple[float, float]]:
-        """Breakpoints ``(t, depth)`` of the piecewise-linear stage motion; an instant
-        release appears as two knots at the same time."""
-        t_back = self.t_retracted
-        return [(self.t_pull_start, 0.0), (self.t_pull_end, self.depth), (self.t_keep_end, self.depth),
-                (t_back, 0.0)]
+        """Breakpoints ``(t, depth)`` of the piecewise-linear stage motion, every push's;
+        an instant release appears as two knots at the same time."""
+        return [knot for p in self.pushes for knot in
+                ((p.t_pull_start, 0.0), (p.t_pull_end, p.depth), (p.t_keep_end, p.depth), (p.t_retracted, 0.0))]
 
 
 def sample_times(t_end: float, rate: float) -> np.ndarray:

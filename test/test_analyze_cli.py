@@ -92,6 +92,7 @@ def test_a_bag_gives_the_contracts_json(tmp_path):
     assert out.returncode == 0, out.stderr
     report = json.loads(out_json.read_text())
     assert set(report) >= {"bag", "phases", "estimate", "models", "diagnosis"}
+    assert "experiments" not in report   # one push: the one-push report, as before issue 25
     assert [p["name"] for p in report["phases"]] == ["pull", "keep", "release"]
     assert set(report["estimate"]) >= {"E", "c1", "c2", "gamma", "std"}
     assert set(report["estimate"]["std"]) == {"E", "c1", "c2", "gamma"}

@@ -273,3 +273,72 @@ def test_a_linear_voigt_spring_integrated_gives_the_exact_response():
         warnings.simplefilter("error")
         broken = respond_voigt_spring(base, lambda eps: np.where(eps > 0.05, np.nan, eps), 0.08, program, t)
     assert np.isnan(broken.stress[t >= 1.0]).all() and not np.isnan(broken.stress[t < 1.0]).any()
+
+
+# -- many pushes on one specimen (issue 25) ------------------------------------------------
+
+
+def test_a_second_push_meets_the_specimen_where_its_permanent_set_and_recovery_put_it():
+    """After an instant release the c2 dashpot keeps its displacement (the permanent set,
+    the integral of the stress over c2) and the Voigt element recovers as
+    exp(-E t / c1): the next push at V meets the top where V tau = u2 + (D - u2)
+    exp(-E (t - t_release) / c1). That root, found independently, against the program's
+    contact (the first instant the stress is positive) within a grid step of 1e-3 s, the
+    strain there the drive's to 1e-5 (the quadrature's error)."""
+    from scipy.integrate import trapezoid
+    from scipy.optimize import brentq
+
+    from rheo_ros.experiment import StageProfile
+    from rheo_ros.models.response import stage_program
+
+    push = StageProfile(depth=D, velocity=V, keep_time=T_K, start_delay=1.0, release_time=10.0)
+    two = StageProfile.repeated(push, 2, pause=2.0)
+    element = three_element(E, C1, C2)
+    t1 = np.linspace(push.t_pull_start, push.t_keep_end, 400_001)
+    u2 = trapezoid(respond(element, stage_program(push), t1).stress, t1) / C2
+    start, t_release = two.t_pull_start, push.t_keep_end
+    tau = brentq(lambda s: V * s - u2 - (D - u2) * np.exp(-E * (start + s - t_release) / C1), 0.0, T_P)
+    fine = np.arange(start, start + T_P, 1e-3)
+    r = respond(element, stage_program(two), fine)
+    touch = fine[np.argmax(r.stress > 0)]
+    assert 0 < u2 < D and tau > u2 / V           # a set, and a recovery still under way
+    assert touch - 1e-3 - 1e-6 <= start + tau <= touch + 1e-6
+    # Before the contact the top recovers freely (no stress), its strain the drive's at contact.
+    assert np.all(r.stress[fine < start + tau - 1e-6] == 0.0)
+    at_contact = respond(element, stage_program(two), np.array([start + tau])).strain[0]
+    # 1e-5: the set's quadrature steps over the stress jump at the end of the pull (h jump / 2 ~ 1e-6 of u2).
+    assert rel_err(at_contact, V * tau) < 1e-5
+
+
+def test_with_no_permanent_set_and_full_recovery_a_second_push_repeats_the_first():
+    """c2 -> inf keeps no set; a pause of 200 Voigt times leaves nothing to recover: push 2's
+    stress is push 1's shifted, to 1e-9 of the peak, save the instant of contact (the
+    drive meets the top an ulp after the push starts)."""
+    from rheo_ros.experiment import StageProfile
+    from rheo_ros.models.response import stage_program
+
+    push = StageProfile(depth=D, velocity=V, keep_time=T_K, start_delay=1.0, release_time=10.0)
+    two = StageProfile.repeated(push, 2, pause=200 * C1 / E)
+    element = three_element(E, C1, 1e16)
+    t = np.linspace(push.t_pull_start + 1e-3, push.t_end, 5001)
+    first = respond(element, stage_program(two), t).stress
+    second = respond(element, stage_program(two), t + two.t_pull_start - push.t_pull_start).stress
+    assert np.max(np.abs(second - first)) < 1e-9 * np.max(first)
+
+
+def test_the_integrated_voigt_spring_follows_many_pushes_as_the_exact_response():
+    """The nonlinear path (solve_ivp with a contact event) with the linear law against the
+    matrix-exponential path over three pushes with a retracting stage: within 1e-9."""
+    from rheo_ros.experiment import StageProfile
+    from rheo_ros.models.response import stage_program
+
+    push = StageProfile(depth=D, velocity=V, keep_time=T_K, start_delay=1.0, release_time=15.0, retract_speed=0.2)
+    three = StageProfile.repeated(push, 3, pause=1.0)
+    element = three_element(E, C1, C2)
+    t = np.linspace(0.0, three.t_end, 3001)
+    exact = respond(element, stage_program(three), t)
+    integrated = respond_voigt_spring(element, lambda eps: eps, 1.0, stage_program(three), t)
+    assert integrated.t_release == pytest.approx(exact.t_release, rel=1e-9)
+    assert exact.t_release > three.pushes[1].t_end       # the last push's release
+    assert np.max(np.abs(integrated.stress - exact.stress)) < 1e-9 * np.max(exact.stress)
+    assert np.max(np.abs(integrated.strain - exact.strain)) < 1e-9 * np.max(exact.strain)

@@ -131,16 +131,30 @@ def analyze(
     setup = Setup(params)
     say(f"reading {bag}")
     releases = release_jobs(bag, setup)
-    job = releases[0]
+    pushes = []
+    for number, job in enumerate(releases, 1):
+        if len(releases) > 1:
+            say(f"experiment {number} of {len(releases)} (t {job.event.t_start:.2f} s to {job.event.t_end:.2f} s)")
+        pushes.append(_analyze_push(bag, setup, job, number, effects, discover_effects, candidates, say, workers))
+    if len(pushes) == 1:
+        return pushes[0]
+    # Every push is an experiment; the top level is the first (the pooled fit is to come).
+    note = (f"{len(pushes)} pushes in the bag: each is an experiment (experiments); the top level is "
+            f"experiment 1 (t {releases[0].event.t_start:.2f} s to {releases[0].event.t_end:.2f} s)")
+    return replace(pushes[0], warnings=(*pushes[0].warnings, note), experiments=tuple(pushes))
+
+
+def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects: Sequence[str],
+                  discover_effects: bool, candidates: Sequence[str] | None, say: Progress,
+                  workers: int | None) -> Analysis:
+    """One push's analysis: the release job's record (its profile carries the pushes
+    before it on the same specimen), closed form, fit, the user's effects, discovery."""
     if job.record is None:
-        raise RecordError(f"{bag}: experiment 1: too few samples to identify")
+        raise RecordError(f"{bag}: experiment {number}: too few samples to identify")
     record = replace(job.record, source=str(bag))
     forward = setup.forward_model()
     noise = sensor_noise(record)
     warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
-    if len(releases) > 1:
-        warnings.append(f"{len(releases)} pushes in the bag: push 1 analysed (t {job.event.t_start:.2f} s to "
-                        f"{job.event.t_end:.2f} s)")
     say("closed form (eq. 6, 7, 10 / 14-17)")
     closed = closed_form("release", record, forward)
     if closed.failed:

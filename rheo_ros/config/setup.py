@@ -259,9 +259,10 @@ class Setup:
     @property
     def profile(self) -> StageProfile:
         p = self.params
-        return StageProfile(depth=p["stage.depth"], velocity=p["stage.velocity"], keep_time=p["stage.keep_time"],
+        push = StageProfile(depth=p["stage.depth"], velocity=p["stage.velocity"], keep_time=p["stage.keep_time"],
                             start_delay=p["stage.start_delay"], release_time=p["stage.release_time"],
                             retract_speed=p["stage.retract_speed"])
+        return StageProfile.repeated(push, p["stage.pushes"], p["stage.pause"])
 
     @property
     def effect_ids(self) -> tuple[str, ...]:

@@ -38,6 +38,8 @@ class Analysis:
         diagnoses: the verdict on each model the loop judged, in order.
         added: the effects the user asked for.
         warnings: what the analysis went without (a closed form with no solution).
+        experiments: every push's analysis, in order, when the bag holds more than
+            one (each push's record carries the pushes before it); empty for one push.
     """
 
     bag: str
@@ -50,6 +52,7 @@ class Analysis:
     diagnoses: tuple[Diagnosis, ...]
     added: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    experiments: tuple[Analysis, ...] = ()
 
     @property
     def base(self) -> ModelFit:
@@ -79,7 +82,14 @@ class Analysis:
         return {k: _finite(np.hypot(std.get(k, np.nan), self.closed_form.params[k] - fit[k])) for k in BASE_PARAMETERS}
 
     def to_json(self) -> dict[str, Any]:
-        """The contract's report: bag, phases, estimate, models, diagnosis."""
+        """The contract's report: bag, phases, estimate, models, diagnosis; with several
+        pushes, ``experiments``: each push's report with the same keys."""
+        report = self._push_json()
+        if self.experiments:
+            report["experiments"] = [e._push_json() | {"experiment": k} for k, e in enumerate(self.experiments, 1)]
+        return report
+
+    def _push_json(self) -> dict[str, Any]:
         verdict = Verdict.of(self.diagnoses)
         # Not diagnosed (--no-discover): adequate is unknown, null.
         diagnosis = self.diagnoses[0].to_json() if self.diagnoses else {"candidates": []}

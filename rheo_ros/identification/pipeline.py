@@ -65,6 +65,7 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedFor
     """
     solutions: list[Estimate] = []
     failed: list[str] = []
+    record = as_fresh_push(record)
     for label, identify in CLOSED_FORMS[phase]:
         try:
             solutions.append(identify(record, forward=forward))
@@ -79,6 +80,42 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedFor
         note = f"{reported.method} reported in place of: {'; '.join(failed)}"
         reported = replace(reported, message=f"{note}; {reported.message}" if reported.message else note)
     return ClosedForm(reported, tuple(s.params for s in solutions), tuple(failed))
+
+
+# A contact this shallow (share of the push's depth) is taken as the stage's zero.
+SHALLOW_CONTACT = 0.01
+
+
+def contact_depth(record: Record) -> float:
+    """Where the stage met the specimen in this push (m of stage depth): the push's depth
+    less how far the top markers sank between before the push and the hold (they follow
+    the stage while it presses). 0 for a first push; a later one meets the permanent set
+    the earlier ones left (and whatever recovery is still under way)."""
+    profile, mesh = record.profile(), record.mesh
+    top = mesh.nodes[:, 1] >= mesh.nodes[:, 1].max() - 1e-12
+    before = record.marker_t < profile.t_pull_start
+    hold = (record.marker_t > profile.t_pull_end) & (record.marker_t < profile.t_keep_end)
+    if not before.any() or not hold.any():
+        return 0.0
+    sank = float(np.mean(record.markers[before][:, top, 1]) - np.mean(record.markers[hold][:, top, 1]))
+    return float(np.clip(profile.depth - sank, 0.0, profile.depth))
+
+
+def as_fresh_push(record: Record) -> Record:
+    """A push after others (``profile.before``), as the paper's closed forms see a push:
+    from a specimen at rest, starting where the stage met it (``contact_depth``), as deep
+    as it went from there. The recovery still under way when it began is not modelled:
+    the closed form is a start and a check; the whole-record fit carries the history."""
+    profile = record.profile()
+    if not profile.before:
+        return record
+    met = contact_depth(record)
+    if met <= SHALLOW_CONTACT * profile.depth:
+        return replace(record, stage_profile=replace(profile, before=()))
+    late = met / profile.velocity
+    fresh = replace(profile, before=(), depth=profile.depth - met, start_delay=profile.start_delay + late,
+                    keep_time=profile.keep_time)
+    return replace(record, stage_profile=fresh)
 
 
 def fit_weights(noise: SensorNoise) -> Weights | None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal
@@ -35,11 +35,16 @@ class Segment:
     """``duration`` in s (``inf`` for an open end); ``strain_rate`` in 1/s, or
     ``None`` for a stress-free segment (the specimen recovers freely).
     ``one_sided``: the drive only pushes; the segment ends early where the stress
-    reaches zero, and the segments after it start there (the next must be stress-free)."""
+    reaches zero, and the next segment starts there (the drive has let go; the segments
+    keep their planned ends). ``drive_from``: where the drive is at the segment's start
+    (strain): after the drive let go, a driven segment meets a specimen that may still be
+    recovering only where the drive reaches its strain (the contact of a later push); it
+    is free until then, or all along if the drive never gets there."""
 
     duration: float
     strain_rate: float | None
     one_sided: bool = False
+    drive_from: float | None = None
 
 
 @dataclass(frozen=True)
@@ -64,9 +69,24 @@ class Program:
 
 def stage_program(profile: StageProfile) -> Program:
     """The top-face displacement program (m) of a stage profile, for the exact model
-    response; the specimen follows a retracting stage while it presses on it."""
-    return Program.push_hold_release(profile.depth, profile.pull_time, profile.keep_time, profile.t_pull_start,
-                                     profile.retract_speed)
+    response; the specimen follows a retracting stage while it presses on it. Earlier
+    pushes (``profile.before``) come first: each later push meets the specimen where
+    the stage reaches it (a permanent set, a recovery under way), not at depth 0."""
+    pushes = profile.pushes
+    first = pushes[0]
+    program = Program.push_hold_release(first.depth, first.pull_time, first.keep_time, first.t_pull_start,
+                                        first.retract_speed)
+    if len(pushes) == 1:
+        return program
+    segments: list[Segment] = []
+    for k, push in enumerate(pushes):
+        driven = list(Program.push_hold_release(push.depth, push.pull_time, push.keep_time,
+                                                retract_speed=push.retract_speed).segments[:-1])
+        if k:   # the drive starts at depth 0 and meets the specimen where it reaches it
+            driven = [replace(seg, drive_from=at) for seg, at in zip(driven, (0.0, push.depth, push.depth))]
+        until = pushes[k + 1].t_pull_start if k + 1 < len(pushes) else np.inf
+        segments += driven + [Segment(until - push.t_pull_start - sum(seg.duration for seg in driven), None)]
+    return Program(first.t_pull_start, tuple(segments))
 
 
 @dataclass(frozen=True)
@@ -129,53 +149,100 @@ def respond(element: Element, program: Program, t: np.ndarray) -> Response:
     """Stress and strain of ``element`` at times ``t`` (sorted) under ``program``.
 
     Before ``program.t0`` the element is unloaded. At a segment boundary the value
-    is the one just after it (a strain-rate step makes the stress jump).
+    is the one just after it (a strain-rate step makes the stress jump). After the
+    drive let go, a driven segment with ``drive_from`` finds the contact where the
+    drive reaches the freely recovering specimen (a root of the exact gap), then drives.
+    ``t_release`` is when the drive last let go.
 
     Raises:
         ValueError: ``t`` not sorted, a stress-free segment for an element that
             cannot recover (a pure spring has no internal state to relax), or a
-            strain-controlled segment after a one-sided one let go.
+            strain-controlled segment without ``drive_from`` after the drive let go.
     """
     t = np.asarray(t, dtype=float)
     if np.any(np.diff(t) < 0):
         raise ValueError("times must be sorted")
     ss = StateSpace.of(element)
-    n = ss.A.shape[0]
     stress, strain = np.zeros_like(t), np.zeros_like(t)
-    x, eps = np.zeros(n), 0.0
-    start, let_go = program.t0, False
-    t_release = None
+    x, eps = np.zeros(ss.A.shape[0]), 0.0
+    start = planned = program.t0
+    let_go, t_release = False, None
     for k, seg in enumerate(program.segments):
-        end = start + seg.duration
-        if seg.one_sided and seg.strain_rate is not None:
-            tau = _first_zero_stress(ss, x, seg.strain_rate, seg.duration)
-            let_go, end = tau < seg.duration, start + tau
-        elif let_go and seg.strain_rate is not None:
-            raise ValueError("a strain-controlled segment after the drive let go")
-        if seg.strain_rate is None and t_release is None:
-            t_release = start
         last = k == len(program.segments) - 1
-        mask = (t >= start) & ((t < end) | (last & (t >= end)))
-        taus = t[mask] - start
-        tau_end = np.array([end - start]) if np.isfinite(end) else np.zeros(0)
-        every = np.concatenate([taus, tau_end])
-        if seg.strain_rate is not None:
-            rate = seg.strain_rate
-            free, driven = _flows(ss.A, every, x, ss.B)
-            xs = free + driven * rate
-            eps_s = eps + rate * every
-            stress[mask] = xs[: taus.size] @ ss.C + ss.D * rate
-        else:
-            Af, gain, jump = _free_dynamics(ss, x)
-            x0, eps0 = x + ss.B * jump, eps + jump
-            xs, integral = _flows(Af, every, x0, x0)
-            eps_s = eps0 + integral @ gain
-            stress[mask] = 0.0
-        strain[mask] = eps_s[: taus.size]
-        if tau_end.size:
-            x, eps = xs[-1], float(eps_s[-1])
+        planned_start, planned = planned, planned + seg.duration
+        end, rate = planned, seg.strain_rate
+        if rate is not None and let_go:
+            if seg.drive_from is None:
+                raise ValueError("a strain-controlled segment after the drive let go")
+            drive = seg.drive_from + rate * (start - planned_start)
+            touch = _contact(ss, x, eps, drive, rate, end - start)
+            if touch > 0.0:   # free until the drive reaches the specimen
+                x, eps = _piece(ss, x, eps, None, start, min(start + touch, end), last and touch >= end - start,
+                                t, stress, strain)
+            if touch >= end - start:
+                start = end
+                continue
+            start, let_go = start + touch, False
+            eps = seg.drive_from + rate * (start - planned_start)
+        if seg.one_sided and rate is not None:
+            tau = _first_zero_stress(ss, x, rate, end - start)
+            if tau < end - start:
+                let_go, end = True, start + tau
+                t_release = end
+        if rate is None and not let_go:
+            let_go, t_release = True, start
+        x, eps = _piece(ss, x, eps, rate, start, end, last, t, stress, strain)
         start = end
     return Response(t, stress, strain, t_release)
+
+
+def _piece(ss: StateSpace, x: np.ndarray, eps: float, rate: float | None, start: float, end: float, last: bool,
+           t: np.ndarray, stress: np.ndarray, strain: np.ndarray) -> tuple[np.ndarray, float]:
+    """Fill ``stress`` and ``strain`` at the times of ``t`` in [start, end) (and after
+    ``end`` when ``last``) driven at ``rate`` from state ``(x, eps)``, or free (``rate``
+    None); return the state at ``end`` (the same state for an open end)."""
+    mask = (t >= start) & ((t < end) | (last & (t >= end)))
+    taus = t[mask] - start
+    tau_end = np.array([end - start]) if np.isfinite(end) else np.zeros(0)
+    every = np.concatenate([taus, tau_end])
+    if rate is not None:
+        free, driven = _flows(ss.A, every, x, ss.B)
+        xs = free + driven * rate
+        eps_s = eps + rate * every
+        stress[mask] = xs[: taus.size] @ ss.C + ss.D * rate
+    else:
+        xs, eps_s = _free_flow(ss, x, eps, every)
+        stress[mask] = 0.0
+    strain[mask] = eps_s[: taus.size]
+    return (xs[-1], float(eps_s[-1])) if tau_end.size else (x, eps)
+
+
+def _free_flow(ss: StateSpace, x: np.ndarray, eps: float, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """States (T, n) and strains (T,) of the specimen recovering freely from ``(x, eps)``."""
+    Af, gain, jump = _free_dynamics(ss, x)
+    x0, eps0 = x + ss.B * jump, eps + jump
+    xs, integral = _flows(Af, taus, x0, x0)
+    return xs, eps0 + integral @ gain
+
+
+def _contact(ss: StateSpace, x: np.ndarray, eps: float, drive: float, rate: float, duration: float) -> float:
+    """Time into a segment at which a drive at ``drive`` moving at ``rate`` meets a
+    specimen recovering freely from ``(x, eps)`` (the drive at or past its strain);
+    ``inf`` if it does not within ``duration``. Bracketed on a grid, polished by Brent's
+    method on the exact gap (a recovery slows down; a drive that moves on meets it once)."""
+    def gap(taus: np.ndarray) -> np.ndarray:
+        return drive + rate * taus - _free_flow(ss, x, eps, taus)[1]
+
+    grid = np.linspace(0.0, duration, 257)
+    values = gap(grid)
+    if values[0] >= 0.0:
+        return 0.0
+    above = np.flatnonzero(values >= 0.0)
+    if above.size == 0:
+        return np.inf
+    i = above[0]
+    return float(brentq(lambda tau: float(gap(np.array([tau]))[0]), grid[i - 1], grid[i],
+                        xtol=1e-12 * duration, rtol=8.9e-16))
 
 
 def _first_zero_stress(ss: StateSpace, x: np.ndarray, rate: float, duration: float) -> float:
@@ -300,32 +367,60 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     stress, strain = np.zeros_like(t), np.zeros_like(t)
     y = np.zeros(2 + len(arms))
     typical = np.concatenate([[1e-2 * height] * 2, 1e-2 * height * k])   # a 1 % strain, its arm stresses
-    start, let_go, t_release = program.t0, False, None
+    start = planned = program.t0
+    let_go, t_release = False, None
+
+    def integrate(rate: float | None, span: tuple[float, float], y0: np.ndarray, events=None):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
+            sol = solve_ivp(rhs, span, y0, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                            args=(rate,), dense_output=True, events=events)
+        return sol if sol.success and np.all(np.isfinite(sol.y[:, -1])) else None
+
     for i, seg in enumerate(program.segments):
         rate = seg.strain_rate
-        if let_go and rate is not None:
-            raise ValueError("a strain-controlled segment after the drive let go")
-        if rate is None and t_release is None:
-            t_release = start
         last = i == len(program.segments) - 1
-        end = start + seg.duration
+        planned_start, planned = planned, planned + seg.duration
+        end = planned
+        if let_go and rate is not None:
+            if seg.drive_from is None:
+                raise ValueError("a strain-controlled segment after the drive let go")
+            drive_from = seg.drive_from
+
+            def reached(tt: float, yy: np.ndarray, _r: float | None) -> float:
+                return drive_from + rate * (tt - planned_start) - yy[1]
+            reached.terminal, reached.direction = True, 1   # type: ignore[attr-defined]
+            if reached(start, y, None) < 0.0:   # free until the drive reaches the specimen
+                sol = integrate(None, (start, end), y, reached) if end > start else None
+                if sol is None:
+                    stress[t >= start], strain[t >= start] = np.nan, np.nan
+                    return Response(t, stress, strain, t_release)
+                touch = float(sol.t_events[0][0]) if sol.t_events[0].size else end
+                free = (t >= start) & ((t < touch) | (last & (t >= touch) & (touch >= end)))
+                stress[free], strain[free] = 0.0, sol.sol(t[free])[1] if free.any() else strain[free]
+                y = sol.sol(touch) if touch < end else sol.y[:, -1]
+                start = touch
+                if touch >= end:
+                    continue
+            let_go = False
+            y = y.copy()
+            y[1] = drive_from + rate * (start - planned_start)
+        if rate is None and not let_go:
+            let_go, t_release = True, start
         inside = (t >= start) & ((t < end) | (last & (t >= end)))
         stop = max(end if np.isfinite(end) else (t[inside].max() if inside.any() else start), start)
         events = None
         if seg.one_sided and rate is not None:
             if total_stress(y[:, None], rate)[0] <= 0.0:
-                stop, let_go = start, True
+                stop, let_go, t_release = start, True, start
             else:
                 def unloaded(_t: float, yy: np.ndarray, r: float | None) -> float:
                     return float(total_stress(yy[:, None], r)[0])
                 unloaded.terminal, unloaded.direction = True, -1   # type: ignore[attr-defined]
                 events = unloaded
         if stop > start:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
-                sol = solve_ivp(rhs, (start, stop), y, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
-                                args=(rate,), dense_output=True, events=events)
-            if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+            sol = integrate(rate, (start, stop), y, events)
+            if sol is None:
                 # A law the solver cannot follow (a fit's trial of an absurd coefficient):
                 # no response, which the fit reads as the worst of fits.
                 stress[t >= start] = np.nan
@@ -333,6 +428,7 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
                 return Response(t, stress, strain, t_release)
             if events is not None and sol.t_events[0].size:
                 stop, let_go = float(sol.t_events[0][0]), True
+                t_release = stop
                 inside &= t < stop
             ys = sol.sol(t[inside]) if inside.any() else np.zeros((y.size, 0))
             y = sol.y[:, -1]

@@ -82,6 +82,9 @@ class PhaseSegmenter:
     def __init__(self, config: SegmenterConfig | None = None) -> None:
         self.config = config or SegmenterConfig()
         self.experiment = 0
+        # The pushes done on the specimen: the next push's profile carries them (``before``),
+        # so its model starts from where they left the specimen.
+        self.history: tuple[StageProfile, ...] = ()
         self.state = "rest"                 # rest | pull | keep | release | settled
         self._settled_at = -np.inf
         self.dropped = {"stage": 0, "force": 0, "markers": 0}
@@ -204,7 +207,7 @@ class PhaseSegmenter:
         self._last_held_t = float(tt[-1])
         self._t_pull = (t_start, t_end)
         self.profile = StageProfile(depth=level, velocity=float(v), keep_time=1e9, start_delay=float(t_start),
-                                    release_time=0.0)
+                                    release_time=0.0, before=self.history)
         self.state = "keep"
         inside_pull = int(np.sum((t_all >= t_start) & (t_all <= t_end)))
         return [PhaseEvent(self.experiment, "pull", float(t_start), float(t_end), t, inside_pull)]
@@ -398,6 +401,7 @@ class PhaseSegmenter:
         self.profile = replace(self.profile, release_time=max(t_end - t_release, 0.0),
                                retract_speed=-slope if slope < 0 else self.profile.retract_speed)
         self.release_reason = why
+        self.history = (*self.history, replace(self.profile, before=()))
         # The stage stream goes back to rest once it passes the release's end.
         self.state, self._settled_at = ("settled", t_end) if why != "next push" else ("rest", t_end)
         self._pending_release, self._t_pull, self._run = None, None, []

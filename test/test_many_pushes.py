@@ -1,0 +1,69 @@
+"""One object, many pushes (issue 25): every push is an experiment, modelled from where
+the earlier pushes left the specimen (its permanent set, a recovery under way).
+
+Data: the package's own simulator (``rheo simulate``, dynamic FE with the stage meeting
+the specimen again where it reaches it): self-consistency, not accuracy on data the
+package did not make.
+"""
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from conftest import TRUTH
+
+PUSHES = 3
+PARAMS = textwrap.dedent("""\
+    /**:
+      ros__parameters:
+        simulator: {seed: 1, effects: ['']}
+        stage: {depth: 0.008, velocity: 0.001, keep_time: 15.0, release_time: 40.0, pushes: 3}
+    """)
+KEYS = {"phases", "estimate", "models", "diagnosis"}
+
+
+@pytest.fixture(scope="module")
+def three_pushes(tmp_path_factory):
+    """A bag of three 8 mm pushes on one specimen, 40 s apart (the specimen keeps a set of
+    ~0.37 mm after the first), analysed by ``rheo analyze --no-discover``."""
+    root = tmp_path_factory.mktemp("pushes")
+    (root / "params.yaml").write_text(PARAMS)
+    bag, out = root / "three", root / "three.json"
+    subprocess.run([sys.executable, "-m", "rheo_ros", "simulate", "--params-file", str(root / "params.yaml"),
+                    "--out", str(bag)], check=True, capture_output=True)
+    run = subprocess.run([sys.executable, "-m", "rheo_ros", "analyze", str(bag), "--no-discover", "--quiet",
+                          "--json", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    return json.loads(out.read_text())
+
+
+def test_every_push_is_an_experiment_with_the_keys_of_a_one_push_report(three_pushes):
+    experiments = three_pushes["experiments"]
+    assert [e["experiment"] for e in experiments] == list(range(1, PUSHES + 1))
+    assert all(KEYS <= set(e) for e in experiments)
+    pulls = [next(p for p in e["phases"] if p["name"] == "pull") for e in experiments]
+    # 8 s pull + 15 s keep + 40 s release apart: each push starts 63 s after the last.
+    assert [round(p["t_start"] - pulls[0]["t_start"], 1) for p in pulls] == [0.0, 63.0, 126.0]
+    assert three_pushes["estimate"] == experiments[0]["estimate"]   # the top level: experiment 1 for now
+    assert any("3 pushes in the bag" in w for w in three_pushes["warnings"])
+
+
+def test_each_push_is_fitted_within_three_std_of_the_truth(three_pushes):
+    """From the earlier pushes' history (the stage meets the set the first push left, not
+    depth 0): measured -0.8 to +0.2 std (push 1), -0.8 to -0.4 (push 2), -2.4 to 0.0
+    (push 3); without the history push 2's c2 came out 49 % low (the issue's run)."""
+    for e in three_pushes["experiments"]:
+        fit = e["models"][0]
+        for name in ("E", "c1", "c2"):
+            assert abs(fit["params"][name] - TRUTH[name]) < 3 * fit["std"][name], (e["experiment"], name)
+
+
+def test_a_later_push_gets_a_closed_form_from_where_the_stage_met_the_specimen(three_pushes):
+    """The closed form sees a later push as a fresh one from the contact the top markers
+    show: within 4 % of the truth, as push 1's own (measured: push 1 1.8 %, pushes 2 and 3
+    at most 2.7 %; from depth 0 they were 235-630 % off)."""
+    for e in three_pushes["experiments"]:
+        for name in ("E", "c1", "c2"):
+            assert e["estimate"][name] == pytest.approx(TRUTH[name], rel=0.04), (e["experiment"], name)
