@@ -14,6 +14,10 @@ import textwrap
 import pytest
 from conftest import TRUTH
 
+from rheo_ros.app.analyze import estimate_bag
+from rheo_ros.identification.estimate import BASE_PARAMETERS
+from rheo_ros.io.bag import read_params
+
 PUSHES = 3
 PARAMS = textwrap.dedent("""\
     /**:
@@ -36,7 +40,7 @@ def three_pushes(tmp_path_factory):
     run = subprocess.run([sys.executable, "-m", "rheo_ros", "analyze", str(bag), "--no-discover", "--quiet",
                           "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    return json.loads(out.read_text())
+    return {**json.loads(out.read_text()), "path": bag}
 
 
 def test_every_push_is_an_experiment_with_the_keys_of_a_one_push_report(three_pushes):
@@ -67,3 +71,30 @@ def test_a_later_push_gets_a_closed_form_from_where_the_stage_met_the_specimen(t
     for e in three_pushes["experiments"]:
         for name in ("E", "c1", "c2"):
             assert e["estimate"][name] == pytest.approx(TRUTH[name], rel=0.04), (e["experiment"], name)
+
+
+def test_the_node_gives_each_push_the_estimate_rheo_analyze_gives_it(three_pushes):
+    """One pipeline: the estimator node's final estimate of each push (its core over the
+    bag, ``estimate_bag``) equals the analysis' experiment to rounding (1e-9)."""
+    params = {**read_params(three_pushes["path"]), "estimator.release_interval": 0.0}
+    _, updates, errors = estimate_bag(str(three_pushes["path"]), params=params)
+    assert errors == []
+    finals = [u for u in updates if u.final]
+    assert [u.experiment for u in finals] == list(range(1, PUSHES + 1))
+    for update, e in zip(finals, three_pushes["experiments"]):
+        base = e["models"][0]
+        for name in BASE_PARAMETERS:
+            assert update.params[name] == pytest.approx(base["params"][name], rel=1e-9), (e["experiment"], name)
+            assert update.std[name] == pytest.approx(base["std"][name], rel=1e-6), (e["experiment"], name)
+
+
+def test_three_pushes_on_one_specimen_pool_into_one_object_with_a_smaller_std(three_pushes):
+    """One pool of the three, no change flagged; the pooled std below every push's (measured
+    E 9.5 against 16.2-16.9 Pa) and the pooled values within 3 pooled stds of the truth
+    (measured E -0.7, c1 -0.8, c2 -2.3)."""
+    assert three_pushes["changes"] == []
+    [pool] = three_pushes["pools"]
+    assert pool["experiments"] == [1, 2, 3]
+    for name in ("E", "c1", "c2"):
+        assert pool["std"][name] < min(e["models"][0]["std"][name] for e in three_pushes["experiments"])
+        assert abs(pool["params"][name] - TRUTH[name]) < 3 * pool["std"][name], name

@@ -20,6 +20,7 @@ from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import SensorNoise
+from rheo_ros.identification.pooling import Change, Pool, pool_experiments
 from rheo_ros.record import Record
 
 
@@ -87,7 +88,15 @@ class Analysis:
         report = self._push_json()
         if self.experiments:
             report["experiments"] = [e._push_json() | {"experiment": k} for k, e in enumerate(self.experiments, 1)]
+            pools, changes = self.pools()
+            report["pools"] = [p.to_json() for p in pools]
+            report["changes"] = [c.to_json() for c in changes]
         return report
+
+    def pools(self) -> tuple[list[Pool], list[Change]]:
+        """The experiments judged one object, pooled, and where the object changed
+        (``pool_experiments`` on each experiment's final model)."""
+        return pool_experiments([e.final.estimate for e in self.experiments])
 
     def _push_json(self) -> dict[str, Any]:
         verdict = Verdict.of(self.diagnoses)
