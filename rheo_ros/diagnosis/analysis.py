@@ -20,6 +20,7 @@ from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import SensorNoise
+from rheo_ros.identification.pipeline import contact_depth
 from rheo_ros.identification.pooling import Change, Pool, pool_experiments
 from rheo_ros.record import Record
 
@@ -87,7 +88,10 @@ class Analysis:
         pushes, ``experiments``: each push's report with the same keys."""
         report = self._push_json()
         if self.experiments:
-            report["experiments"] = [e._push_json() | {"experiment": k} for k, e in enumerate(self.experiments, 1)]
+            # Where the stage met the specimen (m of stage depth; the top markers' sinking):
+            # the set and recovery the earlier pushes left.
+            report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record)}
+                                     for k, e in enumerate(self.experiments, 1)]
             pools, changes = self.pools()
             report["pools"] = [p.to_json() for p in pools]
             report["changes"] = [c.to_json() for c in changes]

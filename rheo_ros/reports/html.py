@@ -47,6 +47,7 @@ from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PUSH_PHASES, Phase
 from rheo_ros.identification.fit import away_from_boundaries
+from rheo_ros.identification.pipeline import contact_depth
 
 REPORT_NAME = "report.html"
 MEASURED_COLOUR = "#333333"
@@ -93,6 +94,7 @@ def render_report(result: Analysis) -> str:
     sections = [
         f"<h1>rheo analyze: <code>{bag}</code></h1>",
         f'<p class="verdict{"" if settled else " open"}" id="verdict">{html.escape(verdict)}</p>',
+        _experiments_section(result),
         _phases_section(result),
         _sensor_section(result),
         _diagnosis_section(result),
@@ -129,6 +131,42 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
 
 
 # -- sections -------------------------------------------------------------------------
+
+def _experiments_section(result: Analysis) -> str:
+    """With several pushes: each experiment's phases, closed form, final model and verdict,
+    the pools of experiments judged one object and the changes flagged. The sections after
+    it are experiment 1's."""
+    if not result.experiments:
+        return ""
+    pools, changes = result.pools()
+    pool_of = {k: i for i, p in enumerate(pools, 1) for k in p.experiments}
+    rows = []
+    for k, e in enumerate(result.experiments, 1):
+        pull = e.record.profile().phases[0]
+        fit = e.final.estimate
+        values = "".join(_value_cell(fit.params[n], ".4g", extra=f' data-param="{n}"') +
+                         _value_cell(fit.std.get(n, np.nan), ".2g", "std") for n in ("E", "c1", "c2"))
+        rows.append(f'<tr data-experiment="{k}"><td>{k}</td><td>{pull.t_start:.2f}</td>'
+                    f"<td>{contact_depth(e.record) * 1e3:.3f}</td>"
+                    f"<td>{html.escape(e.final.name)}</td>{values}<td>{pool_of[k]}</td>"
+                    f"<td>{html.escape(verdict_text(e)[0])}</td></tr>")
+    head = ("<tr><th>experiment</th><th>pull from (s)</th><th>met at (mm)</th><th>final model</th><th>E (Pa)</th><th>std</th>"
+            "<th>c1 (Pa s)</th><th>std</th><th>c2 (Pa s)</th><th>std</th><th>pool</th><th>verdict</th></tr>")
+    pooled = "".join(
+        f"<li>pool {i}: experiments {', '.join(map(str, p.experiments))}: "
+        + ", ".join(f"{n} {p.params[n]:.4g} +- {p.std[n]:.2g}" for n in p.names)
+        + f" (chi-square {p.chi2:.3g} on {p.dof} dof)</li>" for i, p in enumerate(pools, 1))
+    flagged = "".join(
+        f"<li>experiment {c.experiment}: another object or a changed one (distance {c.distance:.3g} over "
+        f"{c.limit:.3g}); moved: "
+        + (", ".join(f"{n} {z:+.1f} std" for n, z in c.moved.items()) or "no one parameter alone")
+        + "</li>" for c in changes)
+    return (f'<section id="experiments"><h2>Experiments</h2><p>{len(result.experiments)} pushes on the '
+            "specimen; each is modelled from where the earlier ones left it. The sections below are "
+            f'experiment 1\'s.</p><table class="parameters">{head}{"".join(rows)}</table>'
+            f'<ul id="pools">{pooled}</ul>' + (f'<ul id="changes">{flagged}</ul>' if flagged else "")
+            + "</section>")
+
 
 def _phases_section(result: Analysis) -> str:
     rows = "".join(
