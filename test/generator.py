@@ -16,6 +16,14 @@ While the stage touches the top, eps is prescribed and eps_d is integrated with
 scipy's solve_ivp, one phase at a time (the strain rate jumps at the knots). Once the
 specimen is free its total stress is zero and it recovers on its own.
 
+Several pushes on the same specimen (issue 25): ``Profile(pushes=n, pause=p)`` repeats
+the push n times, each to the same absolute stage depth (0 at the first contact), the
+next push's stage leaving depth 0 ``pause`` s after the previous push's release_time.
+The specimen's state carries over: after a push it keeps a permanent set (the c2
+dashpot's strain) and may still be recovering, so the next push meets the top only when
+the stage depth reaches the block's sinking eps H (a solve_ivp event during the free
+phase); the contact phases then continue from the block's state at that moment.
+
 Only numpy, scipy, yaml and rosbags are imported: nothing from rheo_ros, on purpose.
 """
 
@@ -53,26 +61,61 @@ class Material:
 
 @dataclass(frozen=True)
 class Profile:
-    """The stage's program (m, m/s, s). retract_speed None: the stage leaves at once."""
+    """The stage's program (m, m/s, s). retract_speed None: the stage leaves at once.
+
+    pushes: the program is run that many times on the same specimen, every push to the
+    same absolute stage depth; push i + 1's stage leaves depth 0 ``pause`` s after the
+    end of push i's release_time (start_delay only precedes the first push). The record
+    ends at the end of the last push's release_time."""
     start_delay: float = 1.0
     velocity: float = 5e-4
     depth: float = 0.010
     keep_time: float = 48.0
     release_time: float = 100.0
     retract_speed: float | None = None
+    pushes: int = 1
+    pause: float = 0.0
 
-    @property
-    def knots(self) -> tuple[float, float, float, float]:
-        """Contact, end of pull, release, end of record (s)."""
-        t0 = self.start_delay
+    def __post_init__(self) -> None:
+        if not isinstance(self.pushes, (int, np.integer)) or self.pushes < 1:
+            raise ValueError(f"pushes: {self.pushes} is not a whole number >= 1")
+        if not self.pause >= 0.0:
+            raise ValueError(f"pause: {self.pause} s is negative")
+        if self.pushes > 1 and self.retract_speed is not None \
+                and self.depth / self.retract_speed > self.release_time + self.pause:
+            raise ValueError(f"retract_speed: the stage needs {self.depth / self.retract_speed:g} s to leave, "
+                             f"more than release_time + pause = {self.release_time + self.pause:g} s")
+
+    def push_knots(self, i: int) -> tuple[float, float, float, float]:
+        """Push i's stage start (depth 0: the first push's contact), end of pull, release
+        and end of its release_time (s)."""
+        period = self.depth / self.velocity + self.keep_time + self.release_time + self.pause
+        t0 = self.start_delay + i * period
         t1 = t0 + self.depth / self.velocity
         t2 = t1 + self.keep_time
         return t0, t1, t2, t2 + self.release_time
 
+    @property
+    def knots(self) -> tuple[float, float, float, float]:
+        """Contact, end of pull, release (of the first push), end of record (s)."""
+        return (*self.push_knots(0)[:3], self.push_knots(self.pushes - 1)[3])
+
     def stage(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stage depth and velocity at t; right-continuous at the knots (a sample on a
-        knot belongs to the phase that starts there)."""
-        t0, t1, t2, _ = self.knots
+        knot belongs to the phase that starts there). Push i owns [its start, the next's)."""
+        depth, vel = self._push_stage(t, 0)
+        for i in range(1, self.pushes):
+            d, v = self._push_stage(t, i)
+            mine = t >= self.push_knots(i)[0]
+            depth, vel = np.where(mine, d, depth), np.where(mine, v, vel)
+        return depth, vel
+
+    def depth_at(self, t: float) -> float:
+        """The stage depth at one time t (s)."""
+        return float(self.stage(np.array([t]))[0][0])
+
+    def _push_stage(self, t: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray]:
+        t0, t1, t2, _ = self.push_knots(i)
         depth = np.clip(self.velocity * (t - t0), 0.0, self.depth)
         vel = np.where((t >= t0) & (t < t1), self.velocity, 0.0)
         after = t >= t2
@@ -108,6 +151,9 @@ class Effects:
     maxwell: (E_i Pa, tau_i s) arms in parallel with the whole three-element model.
     adhesion: (p0 Pa, tau s): after release the bottom reads p0 exp(-t/tau), a positive
         pressure the free specimen does not carry (tau = inf: a constant stuck layer).
+        Several pushes: each release starts its own p0 exp(-(t - t_release)/tau), which
+        lasts until the stage meets the block again (in contact the bottom reads the
+        mechanical stress only); a push the stage never meets releases nothing.
     drift: (a Pa, tau s, spread): each cell's baseline settles as a_j (1 - exp(-t/tau)),
         a_j = a (1 + spread N(0, 1)) drawn per cell from the seed.
     column_drift: (r Pa/s, spread): each column of cells drifts linearly from t = 0 at its
@@ -163,19 +209,53 @@ class Truth:
     profile: Profile
     layout: Layout
     knots: tuple[float, float, float, float]   # contact, end of pull, release, end (s)
+    pushes: tuple[dict[str, Any], ...] = ()     # per push: Push.record() (contact, set, phases)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, default=str)
 
 
 @dataclass(frozen=True)
+class Push:
+    """One push as the integration met it (s, m). contact: the stage meets the top (None:
+    never, the block sank deeper than the stage goes); contact_depth: the stage depth
+    there, equal to the block's sinking eps H; set_at_start / sinking_at_start: the
+    permanent set eps_d H and the sinking eps H when the push's stage leaves depth 0;
+    leaves: the block loses the stage (None: never lost before the record ends);
+    set_after: eps_d H there, the permanent set this push leaves."""
+    index: int
+    start: float
+    contact: float | None
+    contact_depth: float | None
+    set_at_start: float
+    sinking_at_start: float
+    end_pull: float
+    release: float
+    end: float
+    leaves: float | None
+    set_after: float
+    pause_end: float | None   # the next push's stage start (None: the last push)
+
+    def record(self) -> dict[str, Any]:
+        """The truth file's entry: these fields and the phase times (s, [start, end])."""
+        phases = {"pull": [self.contact, self.end_pull] if self.contact is not None else None,
+                  "keep": [max(self.contact, self.end_pull), self.release] if self.contact is not None else None,
+                  "release": [self.release, self.end]}
+        if self.pause_end is not None:
+            phases["pause"] = [self.end, self.pause_end]
+        return {**asdict(self), "phases": phases}
+
+
+@dataclass(frozen=True)
 class Trajectory:
     """Noise-free mechanics at times t: strain (s/H), total stress on the bottom
-    (Pa, compression positive, 0 when free) and whether the stage touches the top."""
+    (Pa, compression positive, 0 when free) and whether the stage touches the top;
+    pushes: what each push met (independent of t)."""
     t: np.ndarray
     eps: np.ndarray
     sigma: np.ndarray
     contact: np.ndarray
+    pushes: tuple[Push, ...] = ()
 
 
 def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarray,
@@ -186,12 +266,15 @@ def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarr
     strain rate is the stage's (constant within a phase, so eps is integrated exactly);
     free, the strain rate is whatever makes the total stress zero. Each sample takes
     the phase it falls in, half-open, so a sample on a knot belongs to the next phase.
+    Pushes after the first: the free phase runs until the stage depth reaches the
+    block's sinking (event gap = stage depth - eps H crossing zero upwards, searched up
+    to the push's release); the contact phases start there from the block's state.
     """
     E, c1, c2, k = material.E, material.c1, material.c2, effects.stiffening
     arm_E = np.array([a[0] for a in effects.maxwell])
     arm_tau = np.array([a[1] for a in effects.maxwell])
     t = np.asarray(t, float)
-    t0, t1, t2, t_end = profile.knots
+    t_end = profile.knots[3]
 
     def spring(ev: float) -> float:
         return E * ev if not k else E * math.expm1(k * ev) / k
@@ -225,30 +308,56 @@ def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarr
                 contact[sel] = True
                 sigma[sel] = [contact_stress(col, rate) for col in ys.T]
 
-    y = np.zeros(2 + len(arm_tau))   # before contact nothing moves: all zero
-    for a, b, rate in ((t0, t1, profile.velocity / height), (t1, t2, 0.0)):
-        sol = solve_ivp(rhs_contact, (a, b), y, args=(rate,), **opts)
-        fill(a, b, sol, rate)
-        y = sol.y[:, -1]
-    a = t2
-    if profile.retract_speed is not None and contact_stress(y, -profile.retract_speed / height) > 0.0:
-        # The stage retracts slower than the specimen recovers: the top follows the
-        # stage, pushing on it, until its stress falls to zero. Then it is free; a free
-        # recovery only slows down (linear model), so it never catches the stage again.
-        rate = -profile.retract_speed / height
+    def touch(tt: float, yy: np.ndarray) -> float:
+        return profile.depth_at(tt) - yy[0] * height
+    touch.terminal, touch.direction = True, 1  # type: ignore[attr-defined]
 
-        def leaves(_t: float, yy: np.ndarray, r: float) -> float:
-            return contact_stress(yy, r)
-        leaves.terminal, leaves.direction = True, -1  # type: ignore[attr-defined]
-        end = min(t_end, t2 + profile.depth / profile.retract_speed)
-        sol = solve_ivp(rhs_contact, (t2, end), y, args=(rate,), events=leaves, **opts)
-        a = float(sol.t[-1])
-        fill(t2, a, sol, rate)
-        y = sol.y[:, -1]
+    def leaves(_t: float, yy: np.ndarray, r: float) -> float:
+        return contact_stress(yy, r)
+    leaves.terminal, leaves.direction = True, -1  # type: ignore[attr-defined]
+
+    y = np.zeros(2 + len(arm_tau))   # before contact nothing moves: all zero
+    a, pushes = t_end, []
+    for i in range(profile.pushes):
+        t0, t1, t2, t3 = profile.push_knots(i)
+        at_start: np.ndarray = y
+        c: float | None = t0
+        if i > 0:   # free since a: wait for the stage to meet the top
+            sol = solve_ivp(rhs_free, (a, t2), y, events=touch, **opts)
+            c = float(sol.t_events[0][0]) if sol.t_events[0].size else None
+            fill(a, t2 if c is None else c, sol, None)
+            at_start = sol.sol(t0) if t0 <= sol.t[-1] else sol.y[:, -1]
+            y, a = sol.y[:, -1].copy(), float(sol.t[-1])
+        if c is not None:
+            if i > 0:
+                y[0] = profile.depth_at(c) / height   # the top is where the stage is
+            for pa, pb, rate in ((t0, t1, profile.velocity / height), (t1, t2, 0.0)):
+                if pb <= c:
+                    continue
+                pa = max(pa, c)
+                sol = solve_ivp(rhs_contact, (pa, pb), y, args=(rate,), **opts)
+                fill(pa, pb, sol, rate)
+                y = sol.y[:, -1]
+            a = t2
+            if profile.retract_speed is not None and contact_stress(y, -profile.retract_speed / height) > 0.0:
+                # The stage retracts slower than the specimen recovers: the top follows the
+                # stage, pushing on it, until its stress falls to zero. Then it is free; a free
+                # recovery only slows down (linear model), so it never catches the stage again.
+                rate = -profile.retract_speed / height
+                end = min(t_end, t2 + profile.depth / profile.retract_speed)
+                sol = solve_ivp(rhs_contact, (t2, end), y, args=(rate,), events=leaves, **opts)
+                a = float(sol.t[-1])
+                fill(t2, a, sol, rate)
+                y = sol.y[:, -1]
+        lost = a if c is not None and a < t_end else None
+        pushes.append(Push(i, t0, c, profile.depth_at(c) if c is not None else None,
+                           float(at_start[1]) * height, float(at_start[0]) * height, t1, t2, t3, lost,
+                           float(y[1]) * height,
+                           profile.push_knots(i + 1)[0] if i + 1 < profile.pushes else None))
     if a < t_end:
         sol = solve_ivp(rhs_free, (a, t_end), y, **opts)
         fill(a, t_end, sol, None, last=True)
-    return Trajectory(t, eps, sigma, contact)
+    return Trajectory(t, eps, sigma, contact, tuple(pushes))
 
 
 def sample_times(rate: float, t_end: float) -> np.ndarray:
@@ -266,6 +375,7 @@ class Data:
     images: np.ndarray     # (T, rows, cols) float32 Pa
     marker_t: np.ndarray
     markers: np.ndarray    # (Tm, rows * cols, 2) m, row-major, bottom row first
+    pushes: tuple[Push, ...] = ()   # what each push met (simulate's)
 
 
 def synthesize(material: Material = Material(), effects: Effects = Effects(), sensor: Sensor | str = "default_like",
@@ -281,11 +391,17 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     shape = (tac_t.size, layout.tactile_rows, layout.tactile_cols)
 
     # Tactile: every cell reads the uniform bottom stress (the block is homogeneous).
-    p = np.broadcast_to(simulate(material, effects, profile, tac_t, layout.height).sigma[:, None, None], shape).copy()
+    mech = simulate(material, effects, profile, tac_t, layout.height)
+    p = np.broadcast_to(mech.sigma[:, None, None], shape).copy()
     if effects.adhesion is not None:
         p0, tau = effects.adhesion
-        t_rel = profile.knots[2]
-        p += np.where(tac_t >= t_rel, p0 * np.exp(-(tac_t - t_rel) / tau), 0.0)[:, None, None]
+        touched = [push for push in mech.pushes if push.contact is not None]
+        for j, push in enumerate(touched):   # each release sticks until the stage meets the block again
+            t_rel = push.release
+            on = tac_t >= t_rel
+            if j + 1 < len(touched):
+                on &= tac_t < touched[j + 1].contact
+            p += np.where(on, p0 * np.exp(-(tac_t - t_rel) / tau), 0.0)[:, None, None]
     if effects.drift is not None:
         a, tau, spread = effects.drift
         amp = a * (1.0 + spread * drift_rng.standard_normal(shape[1:]))
@@ -313,16 +429,25 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
                    y0 - eps[:, None] * y0], axis=-1)
     if sensor.marker_noise > 0:
         xy = xy + sensor.marker_noise * cam_rng.standard_normal(xy.shape)
-    return Data(stage_t, depth, velocity, tac_t, p.astype(np.float32), mk_t, xy)
+    return Data(stage_t, depth, velocity, tac_t, p.astype(np.float32), mk_t, xy, mech.pushes)
 
 
-def params_document(layout: Layout) -> dict[str, Any]:
-    """The contract's parameters file (its names only), ROS params-file shape."""
-    return {"/**": {"ros__parameters": {
+def params_document(layout: Layout, profile: Profile | None = None) -> dict[str, Any]:
+    """The contract's parameters file (its names only), ROS params-file shape. A profile
+    of several pushes adds the stage: the per-push keys and ``stage.pushes``,
+    ``stage.pause`` (one push: nothing, as before; retract_speed None is ``.inf``)."""
+    params: dict[str, Any] = {
         "geometry": "uniaxial",
         "specimen": {"width": layout.width, "height": layout.height, "thickness": layout.thickness},
         "tactile": {"rows": layout.tactile_rows, "cols": layout.tactile_cols},
-        "markers": {"rows": layout.marker_rows, "cols": layout.marker_cols}}}}
+        "markers": {"rows": layout.marker_rows, "cols": layout.marker_cols}}
+    if profile is not None and profile.pushes > 1:
+        params["stage"] = {
+            "depth": profile.depth, "velocity": profile.velocity, "keep_time": profile.keep_time,
+            "start_delay": profile.start_delay, "release_time": profile.release_time,
+            "retract_speed": math.inf if profile.retract_speed is None else profile.retract_speed,
+            "pushes": int(profile.pushes), "pause": float(profile.pause)}
+    return {"/**": {"ros__parameters": params}}
 
 
 def write_bag(data: Data, out: Path, params_yaml: str | None = None, compress: bool = False) -> None:
@@ -374,12 +499,13 @@ def generate(out_dir: str | Path, *, material: Material = Material(), effects: E
     out = Path(out_dir)
     effects = EFFECTS[effects] if isinstance(effects, str) else effects
     sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
-    text = yaml.safe_dump(params_document(layout), sort_keys=False)
+    text = yaml.safe_dump(params_document(layout, profile), sort_keys=False)
     data = synthesize(material, effects, sensor, seed, profile, layout)
     write_bag(data, out, text if params_in_metadata else None, compress)
     if params_file:
         out.with_name(out.name + ".params.yaml").write_text(text)
-    truth = Truth(GENERATOR_ID, seed, material, effects, sensor, profile, layout, profile.knots)
+    truth = Truth(GENERATOR_ID, seed, material, effects, sensor, profile, layout, profile.knots,
+                  tuple(push.record() for push in data.pushes))
     out.with_name(out.name + ".truth.json").write_text(truth.to_json())
     return out
 
@@ -503,10 +629,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--sensor", default="default_like", choices=sorted(SENSORS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--retract-speed", type=float, default=None)
+    ap.add_argument("--pushes", type=int, default=1, help="pushes on the same specimen")
+    ap.add_argument("--pause", type=float, default=0.0, help="s at depth 0 between pushes")
     ap.add_argument("--no-params-in-metadata", action="store_true")
     args = ap.parse_args(argv)
     generate(args.out, effects=args.effect, sensor=args.sensor, seed=args.seed,
-             profile=Profile(retract_speed=args.retract_speed), params_in_metadata=not args.no_params_in_metadata)
+             profile=Profile(retract_speed=args.retract_speed, pushes=args.pushes, pause=args.pause),
+             params_in_metadata=not args.no_params_in_metadata)
 
 
 if __name__ == "__main__":

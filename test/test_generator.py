@@ -202,3 +202,144 @@ def test_same_seed_same_bytes_other_seed_other_noise(bags: dict[str, Path]) -> N
             assert x == y                                  # the stage has no noise
         elif x[0] == channel[g.MARKERS] or t0 * 1e9 < x[1] < t2 * 1e9:
             assert x != y                                  # other noise (tactile: where above the dead band)
+
+
+# --- several pushes on one specimen (issue 25) ---
+
+def test_one_push_is_the_default_and_the_profile_checks_its_pushes() -> None:
+    assert (PROFILE.pushes, PROFILE.pause) == (1, 0.0) and PROFILE.push_knots(0) == PROFILE.knots
+    p = replace(PROFILE, pushes=3, pause=7.0)
+    period = p.depth / p.velocity + p.keep_time + p.release_time + p.pause
+    assert p.knots[:3] == PROFILE.knots[:3] and p.knots[3] == pytest.approx(PROFILE.knots[3] + 2 * period)
+    for bad in ({"pushes": 0}, {"pushes": 2.0}, {"pause": -1.0}, {"pushes": 2, "retract_speed": 1e-4, "release_time": 50.0}):
+        with pytest.raises(ValueError):
+            replace(PROFILE, **bad)
+
+
+def test_without_a_permanent_set_the_second_push_repeats_the_first() -> None:
+    """c2 1e17 (near infinite) and 150 s to recover (30 Voigt times c1/E): push 2's force
+    is push 1's shifted by the time between their contacts, to 1e-9 relative (measured
+    2.1e-11; what is left is the set integral(sigma)/c2 over eps, 2.1e-9 at c2 = 1e15)."""
+    m, p = replace(MAT, c2=1e17), replace(PROFILE, pushes=2, pause=50.0)
+    a, b = g.simulate(m, g.Effects(), p, np.zeros(0), H).pushes
+    shift = b.contact - a.contact
+    assert abs(shift - (b.start - a.start)) < 1e-9           # the stage meets the top at depth ~0
+    t = g.sample_times(50.0, a.end)
+    tr = g.simulate(m, g.Effects(), p, np.concatenate([t, t + shift]), H)
+    s1, s2 = tr.sigma[:t.size], tr.sigma[t.size:]
+    on = s1 != 0.0
+    assert on.sum() > 3000 and np.all(s2[~on] == 0.0)
+    assert rel(s2[on], s1[on]) < 1e-9
+
+
+def gauss(f, spans: tuple[tuple[float, float], ...], n: int = 40) -> float:
+    """Gauss-Legendre with n nodes on each span, f evaluated once on all nodes."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    nodes = np.concatenate([a + (b - a) * (x + 1) / 2 for a, b in spans])
+    weights = np.concatenate([w * (b - a) / 2 for a, b in spans])
+    return float(np.sum(weights * f(nodes)))
+
+
+def test_the_second_push_meets_the_set_the_first_left() -> None:
+    """Instant release and 200 s free (39 Voigt times): push 2 meets the top at the
+    permanent set eps_d H left by push 1. eps_d = integral of sigma/c2 over push 1's
+    contact, computed twice independently: from the closed form (depth/H - eps_v at
+    release) and by Gauss-Legendre quadrature of the generator's own stress inside
+    each phase (the stress jumps at the knots). Tolerance 1e-9 relative, 100 x the
+    integration's rtol 1e-11 (measured: contact depth 4e-16, quadrature and set 2e-14)."""
+    p = replace(PROFILE, pushes=2, pause=100.0)
+    a, b = g.simulate(MAT, g.Effects(), p, np.zeros(0), H).pushes
+    E, c1, c2 = MAT.E, MAT.c1, MAT.c2
+    t0, t1, t2, _ = p.push_knots(0)
+    r, k = p.velocity / H, E / (c1 + c2)
+    ev2 = r * c2 / E * (1 - math.exp(-k * (t1 - t0))) * math.exp(-k * (t2 - t1))
+    closed = (p.depth / H - ev2) * H
+
+    def stress(t: np.ndarray) -> np.ndarray:
+        return g.simulate(MAT, g.Effects(), p, t, H).sigma / c2
+
+    quadrature = gauss(stress, ((t0, t1), (t1, t2))) * H
+    assert abs(quadrature / closed - 1) < 1e-9
+    assert closed > 6e-4                                      # 0.65 mm: a set well above the rounding
+    for got in (b.contact_depth, b.set_at_start, b.sinking_at_start, a.set_after):
+        assert abs(got / closed - 1) < 1e-9
+    assert abs(b.contact - (b.start + closed / p.velocity)) < 1e-9 * b.contact
+    assert a.leaves == t2 and a.contact == t0 and a.set_at_start == 0.0
+
+
+def test_a_block_still_recovering_meets_the_stage_later() -> None:
+    """Release 5 s, no pause (one Voigt time): push 2 meets the top 3.0 s later than the
+    set alone would (at 2.15 mm, not 0.65 mm); the contact is where the closed-form free
+    recovery H (eps_d + eps_v e^{-E (t - t_rel)/c1}) meets the stage (1e-9 relative).
+    The force is zero up to the contact and the top then follows the stage."""
+    p = replace(PROFILE, pushes=2, release_time=5.0)
+    t = g.sample_times(100.0, p.knots[3])
+    tr = g.simulate(MAT, g.Effects(), p, t, H)
+    a, b = tr.pushes
+    E, c1, c2 = MAT.E, MAT.c1, MAT.c2
+    t0, t1, t2, _ = p.push_knots(0)
+    r, k = p.velocity / H, E / (c1 + c2)
+    ev2 = r * c2 / E * (1 - math.exp(-k * (t1 - t0))) * math.exp(-k * (t2 - t1))
+    ed = p.depth / H - ev2
+    from scipy.optimize import brentq
+    meet = brentq(lambda s: p.velocity * (s - b.start) - H * (ed + ev2 * math.exp(-E / c1 * (s - t2))),
+                  b.start, b.end_pull, xtol=1e-13)
+    assert abs(b.contact / meet - 1) < 1e-9 and abs(b.set_at_start / (ed * H) - 1) < 1e-9
+    late = b.contact - (b.start + b.set_at_start / p.velocity)
+    assert 2.9 < late < 3.1 and b.contact_depth > 3 * b.set_at_start
+    before, during = (t >= a.leaves) & (t < b.contact), (t >= b.contact) & (t < b.release)
+    assert np.all(tr.sigma[before] == 0.0) and not tr.contact[before].any()
+    assert tr.contact[during].all() and np.all(tr.sigma[during] > 0.0)
+    np.testing.assert_allclose(tr.eps[during] * H, p.stage(t[during])[0], rtol=0, atol=1e-12)
+    assert np.all(tr.eps[before] * H > p.stage(t[before])[0])       # the stage has not reached the top
+
+
+def test_each_release_has_its_own_adhesion() -> None:
+    p = g.Profile(start_delay=1.0, velocity=1e-3, depth=2e-3, keep_time=3.0, release_time=10.0, pushes=2)
+    eff = g.Effects(adhesion=(500.0, 20.0))
+    clean, sticky = (g.synthesize(effects=e, sensor="noise_free", profile=p) for e in (g.Effects(), eff))
+    a, b = sticky.pushes
+    t, extra = clean.tactile_t, (sticky.images - clean.images)[:, 0, 0]
+    want = np.where((t >= a.release) & (t < b.contact), 500.0 * np.exp(-(t - a.release) / 20.0), 0.0) \
+        + np.where(t >= b.release, 500.0 * np.exp(-(t - b.release) / 20.0), 0.0)
+    np.testing.assert_allclose(extra, want, rtol=1e-6, atol=1e-3)
+
+
+def test_a_bag_of_several_pushes(tmp_path: Path) -> None:
+    import json
+
+    import yaml
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    p = g.Profile(start_delay=1.0, velocity=1e-3, depth=2e-3, keep_time=3.0, release_time=10.0,
+                  retract_speed=2e-3, pushes=3, pause=2.0)
+    bag = g.generate(tmp_path / "multi", profile=p, seed=3)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        conn = [c for c in reader.connections if c.topic == g.STAGE]
+        msgs = [store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages(connections=conn)]
+        assert {c.topic for c in reader.connections} == set(g.TOPICS)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    params = yaml.safe_load(meta["custom_data"][g.PARAMS_KEY])["/**"]["ros__parameters"]
+    t = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in msgs])
+    depth, vel = np.array([m.position[0] for m in msgs]), np.array([m.velocity[0] for m in msgs])
+    down = np.diff(np.concatenate([[0], (vel > 0).astype(int)]))
+    starts = t[down == 1]
+    np.testing.assert_allclose(starts, [p.push_knots(i)[0] for i in range(3)], atol=1e-9)
+    assert (vel < 0).any() and abs(t[-1] - p.knots[3]) < 1e-9
+    for i in range(3):   # every push to the same absolute depth, back to 0 before the next
+        s, _, _, e = p.push_knots(i)
+        mine = (t >= s) & (t <= e)
+        assert depth[mine].max() == pytest.approx(p.depth) and depth[mine][-1] == 0.0
+    assert params["stage"] == {"depth": 2e-3, "velocity": 1e-3, "keep_time": 3.0, "start_delay": 1.0,
+                               "release_time": 10.0, "retract_speed": 2e-3, "pushes": 3, "pause": 2.0}
+    assert "stage" not in g.params_document(LAYOUT, PROFILE)["/**"]["ros__parameters"]
+    truth = json.loads(bag.with_name("multi.truth.json").read_text())
+    assert truth["profile"]["pushes"] == 3 and len(truth["pushes"]) == 3
+    sets = [push["set_at_start"] for push in truth["pushes"]]
+    assert sets[0] == 0.0 and 0 < sets[1] < sets[2]
+    for push in truth["pushes"]:
+        assert push["start"] < push["contact"] or push["index"] == 0
+        assert push["phases"]["pull"][0] == push["contact"] and push["phases"]["release"][0] == push["release"]
+    assert "pause" in truth["pushes"][1]["phases"] and "pause" not in truth["pushes"][2]["phases"]
