@@ -30,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 _MSGDEF = "rheo_ros.io.bag.x_message_definitions__mutmut_"
 _FIT = "rheo_ros.identification.fit."
 _PL = "rheo_ros.identification.pipeline."
+_CF = "rheo_ros.identification.closed_form.x_"
 EQUIVALENT: dict[str, str] = {
     # bag.message_definitions: rosbags names a used type "pkg/Name" on its "MSG: " line (no "/msg/",
     # one "/"), and generates the same text for any ros_version but 1.
@@ -80,6 +81,28 @@ EQUIVALENT: dict[str, str] = {
                                               "method or equations" for n in (22, 23, 28, 29, 49, 50, 54, 55)},
     **{f"{_PL}x_fit_from_starts__mutmut_{n}": "equivalent: discretisation=True is fit_record's default"
        for n in (41, 99)},
+    # identification.closed_form
+    **{f"{_CF}{n}": "equivalent: rcond=None is numpy's default (numpy >= 2)"
+       for n in ("_displacement_gradient__mutmut_13", "recovered_displacement__mutmut_22")},
+    f"{_CF}recovered_displacement__mutmut_28": "equivalent: numpy reads any negative reshape size as the one inferred",
+    f"{_CF}_line_fit__mutmut_5": "equivalent: dx sums to zero, so dx @ (y + y_mean) = dx @ (y - y_mean) up to "
+                                 "rounding (2 y_mean dx.sum() ~ 1e-16 of it)",
+    f"{_CF}_without_baseline__mutmut_4": "equivalent: zero_force_baseline's note is empty exactly when its "
+                                         "baseline is zero: subtracting it leaves the force",
+    f"{_CF}lateral_strain_ratio__mutmut_20": "equivalent: float('NAN') is the same NaN",
+    f"{_CF}from_final_displacement__mutmut_40": "equivalent: '<=' and '<' differ only where the keep relaxed to "
+                                                "exactly 0.01 of its start in floating point",
+    f"{_CF}from_final_displacement__mutmut_155": "equivalent: '>=' and '>' differ only where the follow time is "
+                                                 "exactly half a sample in floating point",
+    f"{_CF}zero_force_baseline__mutmut_19": "equivalent: a zero-force sample at or after the pull's start lies after "
+                                            "t_retracted + 0.5 s, so '>' and '>=' t_pull_start agree",
+    f"{_CF}solve_node_equations__mutmut_110": "equivalent: on the block's uniform field g(gamma') is proportional to "
+                                              "(1 - gamma gamma') / (1 - gamma'^2) > 0, so the sign test at 0.3 "
+                                              "is the block gamma's; g0 otherwise only starts the (unique) search",
+    **{f"{_CF}from_final_displacement__mutmut_{n}": "equivalent: solve_node_equations returns only c2 > eta > 0 "
+                                                     "finite and r = exp() > 0, so c1/E = c1 / (r (c1 + c2)) is "
+                                                     "finite and positive (short of eta c2 overflowing 1e308): the "
+                                                     "branch is never taken" for n in (82, 84, 86)},
     "rheo_ros.online.segmenter.xǁPhaseSegmenterǁclose_release__mutmut_1":
         "equivalent: state 'release' and a pending release are set together (_stage_keep) and cleared "
         "together (_end_release), so 'or' and 'and' agree",
