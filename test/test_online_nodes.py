@@ -245,7 +245,7 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.spin_until(busy.done, 10, "the busy goal answered")
         assert not busy.result().accepted
         result = handle.get_result_async()
-        g.spin_until(result.done, 120, "the identification result")
+        g.spin_until(result.done, 300, "the identification result")
         r = result.result().result
         assert r.success, r.message
         assert (r.estimate.phase, r.estimate.method, r.estimate.final) == ("release", "whole_record", True)
@@ -255,14 +255,15 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         for lane in (True, False):
             mine = [f.feedback.phase for f in feedback if (f.feedback.estimate.method == "whole_record") == lane]
             assert mine == sorted(mine, key=["pull", "keep", "release"].index)
-        final = read_estimate(r.estimate)
-        # Every parameter the 4 mm, 6 s push determines within 4 of its std of the truth
-        # (the simulator's own data: self-consistency); c2 only if determined.
-        for k, v in TRUTH.items():
-            if k in final["undetermined"]:
-                assert k == "c2", final["undetermined"]
-                continue
-            assert abs(final["params"][k] - v) < 4 * final["std"][k], (k, final["params"][k], final["std"][k])
+        assert_trusted_and_right(r)
+        # A second push on the same specimen: it meets the set the first left, and is right too.
+        goal = client.send_goal_async(Identify.Goal())
+        g.spin_until(goal.done, 10, "second goal accepted")
+        result = goal.result().get_result_async()
+        g.spin_until(result.done, 300, "the second push's result")
+        second = result.result().result
+        assert second.estimate.experiment == r.estimate.experiment + 1
+        assert_trusted_and_right(second)
         # Bad goals are aborted with a line naming the value, and the stage never moves:
         # a push through the specimen, a NaN speed.
         height = params["specimen.height"]
@@ -295,9 +296,30 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.spin_until(lambda: len(depths) > 5 and depths[-1] == 0.0, 10, "stage samples at depth 0 after the cancel")
         assert all(later <= earlier for earlier, later in zip(depths, depths[1:])), depths
         assert "cancelled" in (tmp_path / "stage.log").read_text()
+        # A full push after the cancelled one: the specimen pushed three times, one cut short.
+        goal = client.send_goal_async(Identify.Goal())
+        g.spin_until(goal.done, 10, "the goal after the cancel accepted")
+        result = goal.result().get_result_async()
+        g.spin_until(result.done, 300, "the result after the cancel")
+        assert_trusted_and_right(result.result().result)
     finally:
         client.destroy()
         g.close()
+
+
+def assert_trusted_and_right(r) -> None:
+    """The action's result on a clean push of the simulator (self-consistency): the
+    diagnosis of the same push says adequate, the result trusts it, and every parameter the
+    4 mm, 6 s push determines is within 4 of its std of the truth; c2 only if determined."""
+    assert (r.estimate.phase, r.estimate.method, r.estimate.final) == ("release", "whole_record", True)
+    assert r.diagnosis.experiment == r.estimate.experiment
+    assert (r.verdict, r.success, list(r.missing_effects)) == ("adequate", True, []), (r.verdict, r.message)
+    final = read_estimate(r.estimate)
+    assert set(r.undetermined) == set(final["undetermined"]) <= {"c2"}
+    for k, v in TRUTH.items():
+        if k in final["undetermined"]:
+            continue
+        assert abs(final["params"][k] - v) < 4 * final["std"][k], (k, final["params"][k], final["std"][k])
 
 
 def test_a_release_cut_short_by_silence_gets_its_final_estimate_and_diagnosis(tmp_path, ros_env):

@@ -254,9 +254,16 @@ class DynamicFE:
             else:
                 self.z = z_end
         else:
-            self.z = self._propagator("free", dt) @ self.z
-            if self.strain() * self.mesh.height < depth:  # the stage reaches the specimen again
+            z_end = self._propagator("free", dt) @ self.z
+            if self._sinking(z_end) < depth:   # the stage reaches the specimen again within the step
+                units, z = self._contact(dt, d0, depth)
+                at = d0 + (depth - d0) * units / 2**self.RELEASE_DEPTH
+                z = z.copy()
+                z[self.ig], z[self.igd] = -at, -(depth - d0) / dt
+                self.z = self._held_for(2**self.RELEASE_DEPTH - units, dt, z)
                 self.contact = "held"
+            else:
+                self.z = z_end
 
     RELEASE_DEPTH = 24   # the release instant to dt / 2^24 (under a nanosecond at 100 Hz)
 
@@ -289,6 +296,32 @@ class DynamicFE:
                 units, z = units + 2 ** (self.RELEASE_DEPTH - j), trial
         return units, z
 
+    def _sinking(self, z: np.ndarray) -> float:
+        """How far (m) the top has sunk in state ``z``."""
+        return float(-z[self._top_y].mean())
+
+    def _contact(self, dt: float, d0: float, depth: float) -> tuple[int, np.ndarray]:
+        """Instant within a free step at which the stage, going linearly from ``d0`` to
+        ``depth``, reaches the recovering top (in units of dt / 2^RELEASE_DEPTH) and the
+        state then, by bisection on the free ladder (a step's jump onto the specimen would
+        push it by up to the step's travel at once)."""
+        units, z = 0, self.z
+        whole = 2**self.RELEASE_DEPTH
+        for j, phi in enumerate(self._ladder("free", dt), start=1):
+            trial = phi @ z
+            later = units + 2 ** (self.RELEASE_DEPTH - j)
+            if self._sinking(trial) > d0 + (depth - d0) * later / whole:   # not reached yet
+                units, z = later, trial
+        return units, z
+
+    def _held_for(self, units: int, dt: float, z: np.ndarray) -> np.ndarray:
+        """``z`` propagated in contact for ``units`` x dt / 2^RELEASE_DEPTH (the stage's
+        position and speed in the state)."""
+        for j, phi in enumerate(self._ladder("held", dt), start=1):
+            if units & (1 << (self.RELEASE_DEPTH - j)):
+                z = phi @ z
+        return z
+
     def _free_for(self, units: int, dt: float, z: np.ndarray) -> np.ndarray:
         """``z`` propagated freely for ``units`` x dt / 2^RELEASE_DEPTH (up to dt), one ladder
         step per binary digit: no matrix exponential inside a run."""
@@ -315,10 +348,11 @@ class DynamicFE:
         keep = np.searchsorted(grid, t)
         slot = np.full(grid.size, -1)
         slot[keep] = np.arange(t.size)
-        jump = profile.t_keep_end if not np.isfinite(profile.retract_speed) else None
+        # An instant release: the step onto its time arrives at the push's depth, then leaves.
+        jumps = {p.t_keep_end: p.depth for p in profile.pushes if not np.isfinite(p.retract_speed)}
         for i, ti in enumerate(grid):
-            if ti == jump:
-                self.advance(ti, profile.depth)
+            if ti in jumps:
+                self.advance(ti, jumps[ti])
             self.advance(ti, float(depths[i]))
             if slot[i] >= 0:
                 states[slot[i]], held[slot[i]] = self.z, self.contact == "held"

@@ -215,7 +215,7 @@ def diagnosis_message(types: MessageTypes, d: Any) -> Any:
     msg = types.lookup(DIAGNOSIS_TYPE)(
         header=_header(types, ""), experiment=d.experiment, adequate=bool(d.adequate),
         missing_effects=list(d.missing_effects), forms=list(d.forms), undecided=list(d.undecided),
-        models=list(d.models), rmse_force=types.float64s(d.rmse_force), bic=types.float64s(d.bic), candidates=list(d.candidates),
+        verdict=d.verdict, undetermined=list(d.undetermined), models=list(d.models), rmse_force=types.float64s(d.rmse_force), bic=types.float64s(d.bic), candidates=list(d.candidates),
         delta_bic=types.float64s(d.delta_bic), model=d.models[-1], names=list(d.names),
         values=types.float64s(d.values), std=types.float64s(d.std), evidence=d.evidence,
     )
@@ -229,7 +229,8 @@ def read_diagnosis(msg: Any) -> dict[str, Any]:
     return {
         "stamp": stamp_ns(msg) * 1e-9, "experiment": int(msg.experiment), "adequate": bool(msg.adequate),
         "missing_effects": list(msg.missing_effects), "forms": dict(zip(msg.missing_effects, msg.forms)),
-        "undecided": list(msg.undecided), "models": dict(zip(msg.models, zip(np.asarray(msg.rmse_force, float).tolist(),
+        "undecided": list(msg.undecided), "verdict": msg.verdict, "undetermined": list(msg.undetermined),
+        "models": dict(zip(msg.models, zip(np.asarray(msg.rmse_force, float).tolist(),
                                            np.asarray(msg.bic, float).tolist()))),
         "candidates": dict(zip(msg.candidates, np.asarray(msg.delta_bic, float).tolist())),
         "model": msg.model, "params": dict(zip(names, np.asarray(msg.values, float).tolist())),

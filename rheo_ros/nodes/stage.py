@@ -18,14 +18,22 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rheo_ros_interfaces.action import Identify
-from rheo_ros_interfaces.msg import Estimate
+from rheo_ros_interfaces.msg import Diagnosis, Estimate
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from rheo_ros.config.setup import ParamsError, Setup, check_params
-from rheo_ros.io.messages import ESTIMATE_TOPIC, STAGE_TOPIC, JointStateEncoder, MessageTypes, stamp_ns
+from rheo_ros.io.messages import (
+    DIAGNOSIS_TOPIC,
+    ESTIMATE_TOPIC,
+    STAGE_TOPIC,
+    JointStateEncoder,
+    MessageTypes,
+    stamp_ns,
+)
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS
+from rheo_ros.online.estimator import trusted
 from rheo_ros.rig.stage import MotionSource, motion_source
 
 IDENTIFY_ACTION = "/rheo/identify"
@@ -63,6 +71,10 @@ class StageNode(Node):
         self.goal_lock = threading.Lock()
         self.estimates: list[Estimate] = []
         self.create_subscription(Estimate, ESTIMATE_TOPIC, self.estimates.append, LATCHED_QOS, callback_group=group)
+        # The result says whether to trust the estimate: the estimator's diagnosis of the push.
+        self.diagnose = params["estimator.diagnose"]
+        self.diagnoses: list[Diagnosis] = []
+        self.create_subscription(Diagnosis, DIAGNOSIS_TOPIC, self.diagnoses.append, LATCHED_QOS, callback_group=group)
         self.action = ActionServer(self, Identify, IDENTIFY_ACTION, execute_callback=self.identify,
                                    goal_callback=self.accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
                                    callback_group=group)
@@ -113,6 +125,9 @@ class StageNode(Node):
 
     action_active = False          # a goal holds the stage, from its acceptance to its result
     FIT_TIMEOUT = 60.0   # s of wall time without an estimate, once the profile is done
+    # s of wall time for the push's diagnosis after its final estimate: the discovery loop
+    # fits several candidate models (tens of seconds here, minutes on a loaded machine).
+    DIAGNOSIS_TIMEOUT = 600.0
 
     # -- /rheo/identify ----------------------------------------------------------------
 
@@ -141,13 +156,17 @@ class StageNode(Node):
                    if not getattr(goal, k) <= 0}
         result = Identify.Result()
         try:
-            profile = Setup(check_params({**self.setup.params, **changes}, "goal")).profile
+            profile = Setup(check_params({**self.setup.params, **changes}, "goal")).profile.pushes[0]   # one push
         except ParamsError as exc:
             handle.abort()
             result.message = f"bad goal: {exc}"
             self.get_logger().warning(f"{IDENTIFY_ACTION}: {result.message}")
             return result
         seen = len(self.estimates)
+        # This run's push is a new experiment: estimates of earlier ones (a release that
+        # closes only as this push starts, a cancelled push's) are not its result.
+        earlier = max((m.experiment for m in self.estimates), default=0)
+        run_experiment: int | None = None
         self.start(profile)
         asked = ", ".join(f"{k.removeprefix('stage.')} {v:g}" for k, v in changes.items())
         self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({asked})")
@@ -163,22 +182,56 @@ class StageNode(Node):
                 return self._cancel(handle, result)
             for msg in self.estimates[seen:]:
                 seen += 1
-                if self.t0 is None or stamp_ns(msg) < self.t0:
-                    continue        # an estimate of an earlier run
-                handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
-                if deadline is not None:
+                if deadline is not None:   # the estimator is still at work (maybe on an earlier push)
                     deadline = time.monotonic() + self.FIT_TIMEOUT
+                if self.t0 is None or stamp_ns(msg) < self.t0 or msg.experiment <= earlier:
+                    continue        # an estimate of an earlier run
+                if run_experiment is None and msg.phase in ("pull", "keep"):
+                    run_experiment = msg.experiment
+                if msg.experiment != (run_experiment or msg.experiment) or (
+                        run_experiment is None and not msg.final):
+                    continue        # a push before this one, closing its release now
+                handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
                 if msg.final:
                     # Identified: the stage is off the specimen (the release has
                     # settled); the rest of the profile's recording time is not needed.
                     source, self.source, self.phase = self.source, None, "done"
                     source.close()
-                    handle.succeed()
-                    return Identify.Result(success=True, message="identified", estimate=msg)
+                    return self._judged(handle, msg)
             if deadline is not None and time.monotonic() > deadline:
                 handle.abort()
                 result.message = "no final estimate on /rheo/estimate in time (is the estimator running?)"
                 return result
+
+    def _judged(self, handle, estimate: Estimate) -> Identify.Result:
+        """The result: the final estimate with the estimator's diagnosis of the same push
+        (waited for where the estimator diagnoses), ``success`` whether to trust it."""
+        result = Identify.Result(estimate=estimate, undetermined=list(estimate.undetermined))
+        diagnosis = None
+        if self.diagnose:
+            deadline = time.monotonic() + self.DIAGNOSIS_TIMEOUT
+            while diagnosis is None and time.monotonic() < deadline and not handle.is_cancel_requested:
+                diagnosis = next((d for d in reversed(self.diagnoses) if d.experiment == estimate.experiment
+                                  and stamp_ns(d) >= stamp_ns(estimate)), None)
+                time.sleep(0.02)
+            if diagnosis is None:
+                handle.abort()
+                result.verdict = "not_diagnosed"
+                result.message = ("cancelled while waiting for the diagnosis" if handle.is_cancel_requested else
+                                  "no diagnosis on /rheo/diagnosis in time (the estimate is in the result)")
+                return result
+        if diagnosis is None:
+            result.verdict = "not_diagnosed"
+        else:
+            result.diagnosis, result.verdict = diagnosis, diagnosis.verdict
+            result.missing_effects = list(diagnosis.missing_effects)
+            result.undetermined = sorted({*result.undetermined, *diagnosis.undetermined})
+        result.success, result.message = trusted(
+            result.verdict, result.undetermined, result.missing_effects,
+            [] if diagnosis is None else list(diagnosis.undecided))
+        handle.succeed()   # the action ran; success says whether its estimate can be used
+        self.get_logger().info(f"{IDENTIFY_ACTION}: {result.verdict}: {result.message}")
+        return result
 
     def _cancel(self, handle, result: Identify.Result) -> Identify.Result:
         if self.t0 is None:

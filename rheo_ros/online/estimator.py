@@ -27,7 +27,7 @@ before it are kept.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -115,6 +115,24 @@ class OnlineDiagnosis:
     std: np.ndarray
     evidence: str
 
+    @property
+    def verdict(self) -> str:
+        """adequate (the base model), missing_effect (found, and with it adequate),
+        undecided (the data ask for an effect but cannot pin it down or tell two apart) or
+        unexplained (the model misfits and no effect in the catalogue explains it)."""
+        if self.adequate:
+            return "missing_effect" if self.missing_effects else "adequate"
+        return "undecided" if self.undecided else "unexplained"
+
+    @property
+    def undetermined(self) -> tuple[str, ...]:
+        """The base parameters of the last model the data do not pin down."""
+        return tuple(n for n, s in zip(self.names, self.std) if n in BASE_PARAMETERS and not np.isfinite(s))
+
+    def trusted(self, undetermined: Sequence[str] = ()) -> tuple[bool, str]:
+        """``trusted`` on this diagnosis and the final estimate's ``undetermined`` names."""
+        return trusted(self.verdict, (*self.undetermined, *undetermined), self.missing_effects, self.undecided)
+
     @classmethod
     def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict) -> OnlineDiagnosis:
         last = models[-1].estimate
@@ -131,6 +149,23 @@ class OnlineDiagnosis:
             std=np.array([std.get(n, np.inf) for n in last.params]),
             evidence=verdict.evidence,
         )
+
+
+def trusted(verdict: str, undetermined: Sequence[str], missing_effects: Sequence[str] = (),
+            undecided: Sequence[str] = ()) -> tuple[bool, str]:
+    """Whether a robot may act on a push's estimate, and why (or why not): E, c1 and c2
+    determined, and a model that fits (``verdict`` adequate or missing_effect; not_diagnosed
+    where the estimator does not diagnose, the parameters alone then decide)."""
+    open_ = [n for n in ("E", "c1", "c2") if n in undetermined]
+    if open_:
+        return False, f"the data do not determine {', '.join(open_)}"
+    if verdict == "undecided":
+        return False, f"the data ask for {' or '.join(undecided)} but cannot pin it down"
+    if verdict == "unexplained":
+        return False, "the model misfits and no effect in the catalogue explains it"
+    if verdict == "missing_effect":
+        return True, f"identified with {', '.join(missing_effects)}"
+    return True, "identified" if verdict == "adequate" else "identified (not diagnosed)"
 
 
 @dataclass(frozen=True)
