@@ -250,7 +250,7 @@ class DynamicFE:
             if depth < d0 and self._pressing(z_end) < 0.0:
                 held_units, self.z = self._release(dt)
                 self.contact = "free"
-                self.z = self._free_for(2**self.RELEASE_DEPTH - held_units, dt, self.z)
+                self.z = self._run_for("free", 2**self.RELEASE_DEPTH - held_units, dt, self.z)
             else:
                 self.z = z_end
         else:
@@ -260,7 +260,7 @@ class DynamicFE:
                 at = d0 + (depth - d0) * units / 2**self.RELEASE_DEPTH
                 z = z.copy()
                 z[self.ig], z[self.igd] = -at, -(depth - d0) / dt
-                self.z = self._held_for(2**self.RELEASE_DEPTH - units, dt, z)
+                self.z = self._run_for("held", 2**self.RELEASE_DEPTH - units, dt, z)
                 self.contact = "held"
             else:
                 self.z = z_end
@@ -287,14 +287,9 @@ class DynamicFE:
     def _release(self, dt: float) -> tuple[int, np.ndarray]:
         """Instant within the step at which the stage stops pressing (in units of
         dt / 2^RELEASE_DEPTH) and the state then, by bisection on the held ladder."""
-        units, z = 0, self.z
-        if self._pressing(z) <= 0.0:
-            return units, z
-        for j, phi in enumerate(self._ladder("held", dt), start=1):
-            trial = phi @ z
-            if self._pressing(trial) > 0.0:
-                units, z = units + 2 ** (self.RELEASE_DEPTH - j), trial
-        return units, z
+        if self._pressing(self.z) <= 0.0:
+            return 0, self.z
+        return self._last_before("held", dt, lambda z, _: self._pressing(z) > 0.0)
 
     def _sinking(self, z: np.ndarray) -> float:
         """How far (m) the top has sunk in state ``z``."""
@@ -305,29 +300,28 @@ class DynamicFE:
         ``depth``, reaches the recovering top (in units of dt / 2^RELEASE_DEPTH) and the
         state then, by bisection on the free ladder (a step's jump onto the specimen would
         push it by up to the step's travel at once)."""
-        units, z = 0, self.z
         whole = 2**self.RELEASE_DEPTH
-        for j, phi in enumerate(self._ladder("free", dt), start=1):
+        return self._last_before("free", dt, lambda z, units: self._sinking(z) > d0 + (depth - d0) * units / whole)
+
+    def _last_before(self, contact: Contact, dt: float, still) -> tuple[int, np.ndarray]:
+        """The last instant of the step (units of dt / 2^RELEASE_DEPTH) at which
+        ``still(state, units)`` holds, stepping ``contact``'s ladder from the state now
+        (``still`` holds now and changes once within the step), and the state then."""
+        units, z = 0, self.z
+        for j, phi in enumerate(self._ladder(contact, dt), start=1):
             trial = phi @ z
             later = units + 2 ** (self.RELEASE_DEPTH - j)
-            if self._sinking(trial) > d0 + (depth - d0) * later / whole:   # not reached yet
+            if still(trial, later):
                 units, z = later, trial
         return units, z
 
-    def _held_for(self, units: int, dt: float, z: np.ndarray) -> np.ndarray:
-        """``z`` propagated in contact for ``units`` x dt / 2^RELEASE_DEPTH (the stage's
-        position and speed in the state)."""
-        for j, phi in enumerate(self._ladder("held", dt), start=1):
-            if units & (1 << (self.RELEASE_DEPTH - j)):
-                z = phi @ z
-        return z
-
-    def _free_for(self, units: int, dt: float, z: np.ndarray) -> np.ndarray:
-        """``z`` propagated freely for ``units`` x dt / 2^RELEASE_DEPTH (up to dt), one ladder
-        step per binary digit: no matrix exponential inside a run."""
+    def _run_for(self, contact: Contact, units: int, dt: float, z: np.ndarray) -> np.ndarray:
+        """``z`` propagated in ``contact`` for ``units`` x dt / 2^RELEASE_DEPTH (up to dt),
+        one ladder step per binary digit: no matrix exponential inside a run (in contact
+        the stage's position and speed are in the state)."""
         if units >= 2**self.RELEASE_DEPTH:
-            return self._propagator("free", dt) @ z
-        for j, phi in enumerate(self._ladder("free", dt), start=1):
+            return self._propagator(contact, dt) @ z
+        for j, phi in enumerate(self._ladder(contact, dt), start=1):
             if units & (1 << (self.RELEASE_DEPTH - j)):
                 z = phi @ z
         return z

@@ -113,8 +113,7 @@ def as_fresh_push(record: Record) -> Record:
     if met <= SHALLOW_CONTACT * profile.depth:
         return replace(record, stage_profile=replace(profile, before=()))
     late = met / profile.velocity
-    fresh = replace(profile, before=(), depth=profile.depth - met, start_delay=profile.start_delay + late,
-                    keep_time=profile.keep_time)
+    fresh = replace(profile, before=(), depth=profile.depth - met, start_delay=profile.start_delay + late)
     return replace(record, stage_profile=fresh)
 
 

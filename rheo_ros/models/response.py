@@ -74,10 +74,9 @@ def stage_program(profile: StageProfile) -> Program:
     the stage reaches it (a permanent set, a recovery under way), not at depth 0."""
     pushes = profile.pushes
     first = pushes[0]
-    program = Program.push_hold_release(first.depth, first.pull_time, first.keep_time, first.t_pull_start,
-                                        first.retract_speed)
     if len(pushes) == 1:
-        return program
+        return Program.push_hold_release(first.depth, first.pull_time, first.keep_time, first.t_pull_start,
+                                         first.retract_speed)
     segments: list[Segment] = []
     for k, push in enumerate(pushes):
         driven = list(Program.push_hold_release(push.depth, push.pull_time, push.keep_time,
@@ -228,20 +227,28 @@ def _free_flow(ss: StateSpace, x: np.ndarray, eps: float, taus: np.ndarray) -> t
 def _contact(ss: StateSpace, x: np.ndarray, eps: float, drive: float, rate: float, duration: float) -> float:
     """Time into a segment at which a drive at ``drive`` moving at ``rate`` meets a
     specimen recovering freely from ``(x, eps)`` (the drive at or past its strain);
-    ``inf`` if it does not within ``duration``. Bracketed on a grid, polished by Brent's
-    method on the exact gap (a recovery slows down; a drive that moves on meets it once)."""
-    def gap(taus: np.ndarray) -> np.ndarray:
-        return drive + rate * taus - _free_flow(ss, x, eps, taus)[1]
+    ``inf`` if it does not within ``duration`` (a recovery slows down; a drive that moves
+    on meets it once)."""
+    def short(taus: np.ndarray) -> np.ndarray:   # how far the drive still is from the top
+        return _free_flow(ss, x, eps, taus)[1] - drive - rate * taus
 
-    grid = np.linspace(0.0, duration, 257)
-    values = gap(grid)
-    if values[0] >= 0.0:
+    touch = _first_crossing(short, duration, 257)
+    return np.inf if touch is None else touch
+
+
+def _first_crossing(f: Callable[[np.ndarray], np.ndarray], duration: float, points: int) -> float | None:
+    """The first time in [0, duration] at which ``f`` (exact, vectorised over times) is at
+    or below zero; None if it stays above. Bracketed on a grid of ``points``, polished by
+    Brent's method on ``f`` itself."""
+    grid = np.linspace(0.0, duration, points)
+    values = f(grid)
+    if values[0] <= 0.0:
         return 0.0
-    above = np.flatnonzero(values >= 0.0)
-    if above.size == 0:
-        return np.inf
-    i = above[0]
-    return float(brentq(lambda tau: float(gap(np.array([tau]))[0]), grid[i - 1], grid[i],
+    below = np.flatnonzero(values <= 0.0)
+    if below.size == 0:
+        return None
+    i = below[0]
+    return float(brentq(lambda tau: float(f(np.array([tau]))[0]), grid[i - 1], grid[i],
                         xtol=1e-12 * duration, rtol=8.9e-16))
 
 
@@ -256,16 +263,8 @@ def _first_zero_stress(ss: StateSpace, x: np.ndarray, rate: float, duration: flo
         free, driven = _flows(ss.A, taus, x, ss.B)
         return (free + driven * rate) @ ss.C + ss.D * rate
 
-    grid = np.linspace(0.0, duration, 65)
-    values = stress(grid)
-    if values[0] <= 0.0:
-        return 0.0
-    below = np.flatnonzero(values <= 0.0)
-    if below.size == 0:
-        return duration
-    i = below[0]
-    return float(brentq(lambda tau: float(stress(np.array([tau]))[0]), grid[i - 1], grid[i],
-                        xtol=1e-12 * duration, rtol=8.9e-16))
+    zero = _first_crossing(stress, duration, 65)
+    return duration if zero is None else zero
 
 
 def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -187,9 +187,9 @@ class StageNode(Node):
                 if self.t0 is None or stamp_ns(msg) < self.t0 or msg.experiment <= earlier:
                     continue        # an estimate of an earlier run
                 if run_experiment is None and msg.phase in ("pull", "keep"):
-                    run_experiment = msg.experiment
-                if msg.experiment != (run_experiment or msg.experiment) or (
-                        run_experiment is None and not msg.final):
+                    run_experiment = msg.experiment   # this run's push showed itself
+                mine = msg.experiment == run_experiment if run_experiment is not None else msg.final
+                if not mine:
                     continue        # a push before this one, closing its release now
                 handle.publish_feedback(Identify.Feedback(phase=msg.phase, estimate=msg))
                 if msg.final:

@@ -129,10 +129,6 @@ class OnlineDiagnosis:
         """The base parameters of the last model the data do not pin down."""
         return tuple(n for n, s in zip(self.names, self.std) if n in BASE_PARAMETERS and not np.isfinite(s))
 
-    def trusted(self, undetermined: Sequence[str] = ()) -> tuple[bool, str]:
-        """``trusted`` on this diagnosis and the final estimate's ``undetermined`` names."""
-        return trusted(self.verdict, (*self.undetermined, *undetermined), self.missing_effects, self.undecided)
-
     @classmethod
     def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict) -> OnlineDiagnosis:
         last = models[-1].estimate
