@@ -50,8 +50,30 @@ def test_every_push_is_an_experiment_with_the_keys_of_a_one_push_report(three_pu
     pulls = [next(p for p in e["phases"] if p["name"] == "pull") for e in experiments]
     # 8 s pull + 15 s keep + 40 s release apart: each push starts 63 s after the last.
     assert [round(p["t_start"] - pulls[0]["t_start"], 1) for p in pulls] == [0.0, 63.0, 126.0]
-    assert three_pushes["estimate"] == experiments[0]["estimate"]   # the top level: experiment 1 for now
-    assert any("3 pushes in the bag" in w for w in three_pushes["warnings"])
+    assert any("3 pushes in the bag" in w and "pooled fit of experiments 1, 2, 3" in w
+               for w in three_pushes["warnings"])
+
+
+def test_the_top_level_is_the_pooled_fit_of_the_pushes_judged_one_object(three_pushes):
+    """The contract: with several pushes the top-level keys describe the pooled fit. Its base
+    model is the pool's (to 1e-3 of its std: the model's pool holds gamma too, whose
+    correlations move E by ~1e-5 std), the closed form the pushes' inverse-variance mean
+    (so between the smallest and largest push, with a std below each push's), the phases
+    every push's, the RMS force the members' root mean square (within the pushes' range)."""
+    experiments, [pool] = three_pushes["experiments"], three_pushes["pools"]
+    base = three_pushes["models"][0]
+    assert base["name"] == "three_element" and "pooled" in base["message"]
+    for name in ("E", "c1", "c2"):
+        assert base["params"][name] == pytest.approx(pool["params"][name], abs=1e-3 * pool["std"][name])
+        assert base["std"][name] == pytest.approx(pool["std"][name], rel=1e-3)
+        pushes = [e["estimate"][name] for e in experiments]
+        assert min(pushes) <= three_pushes["estimate"][name] <= max(pushes)
+        assert three_pushes["estimate"]["std"][name] < min(e["estimate"]["std"][name] for e in experiments)
+    assert [p["experiment"] for p in three_pushes["phases"]] == [k for k in (1, 2, 3) for _ in range(3)]
+    rms = [e["models"][0]["rmse_force"] for e in experiments]
+    assert min(rms) <= base["rmse_force"] <= max(rms)
+    assert base["bic"] == pytest.approx(sum(e["models"][0]["bic"] for e in experiments), rel=1e-12)
+    assert three_pushes["diagnosis"]["experiments"] == [1, 2, 3]
 
 
 def test_each_push_is_fitted_within_three_std_of_the_truth(three_pushes):

@@ -126,6 +126,23 @@ def test_a_next_push_before_the_mesh_settles_ends_the_release():
     assert [e.name for e in events].count("pull") == 2
 
 
+def test_a_release_settles_only_once_the_stage_stream_has_passed_it():
+    """Markers 5 s ahead of a lagging stage stream (a busy publisher over DDS): the mesh
+    may look settled on frames the stage has not reached, which may already hold the next
+    push. The release ends at the same frame as in stamp order, emitted by the stage
+    sample that passes it, not by a marker frame ahead of the stage."""
+    in_order = [e for e in feed(PhaseSegmenter(), stream()) if e.name == "release"]
+    lagging = sorted(stream(), key=lambda m: m[1] + (5.0 if m[0] == "stage" else 0.0))
+    seg, last_stage, found = PhaseSegmenter(), -np.inf, []
+    add = {"stage": seg.add_stage, "force": seg.add_force, "markers": seg.add_markers}
+    for name, t, v in lagging:
+        last_stage = t if name == "stage" else last_stage
+        found += [(name, last_stage, e) for e in add[name](t, v) if e.name == "release"]
+    [(name, stage_at, release)] = found
+    assert name == "stage" and stage_at >= release.t_end
+    assert release.t_end == in_order[0].t_end and release.t_start == in_order[0].t_start
+
+
 def test_a_release_still_moving_at_max_release_ends_there():
     seg = PhaseSegmenter(SegmenterConfig(max_release=2.0))
     events = feed(seg, stream())

@@ -20,6 +20,7 @@ from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
 from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
+from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts, relaxation_unseen
 from rheo_ros.io.bag import bag_samples, read_params
@@ -135,20 +136,21 @@ def analyze(
     for number, job in enumerate(releases, 1):
         if len(releases) > 1:
             say(f"experiment {number} of {len(releases)} (t {job.event.t_start:.2f} s to {job.event.t_end:.2f} s)")
-        pushes.append(_analyze_push(bag, setup, job, number, effects, discover_effects, candidates, say, workers))
+        earlier = pushes[-1].base.estimate if pushes else None   # the node's final fit of the push before
+        pushes.append(_analyze_push(bag, setup, job, number, effects, discover_effects, candidates, say, workers,
+                                    earlier))
     if len(pushes) == 1:
         return pushes[0]
-    # Every push is an experiment; the top level is the first (the pooled fit is to come).
-    note = (f"{len(pushes)} pushes in the bag: each is an experiment (experiments); the top level is "
-            f"experiment 1 (t {releases[0].event.t_start:.2f} s to {releases[0].event.t_end:.2f} s)")
-    return replace(pushes[0], warnings=(*pushes[0].warnings, note), experiments=tuple(pushes))
+    # Every push is an experiment; the report's top level pools the last object's (to_json).
+    return replace(pushes[0], experiments=tuple(pushes))
 
 
 def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects: Sequence[str],
                   discover_effects: bool, candidates: Sequence[str] | None, say: Progress,
-                  workers: int | None) -> Analysis:
+                  workers: int | None, earlier: Estimate | None = None) -> Analysis:
     """One push's analysis: the release job's record (its profile carries the pushes
-    before it on the same specimen), closed form, fit, the user's effects, discovery."""
+    before it on the same specimen), closed form, fit (``earlier``: the push before's, a
+    start where the closed form leaves a parameter open), the user's effects, discovery."""
     if job.record is None:
         raise RecordError(f"{bag}: experiment {number}: too few samples to identify")
     record = replace(job.record, source=str(bag))
@@ -162,7 +164,7 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     for warning in warnings:
         say(f"warning: {warning}")
     say("fitting three_element over the whole record")
-    starts = fit_starts(record, closed, setup.estimator_config())
+    starts = fit_starts(record, closed, setup.estimator_config(), earlier)
     fit = fit_from_starts(record, forward, starts, noise=noise)
     _, fit = relaxation_unseen(record, fit, forward, starts)   # as the node: a flat c2 valley widens the rest
     noise = noise.floored(fit.statistics.floor)   # the model's own resolution: never judged against zero

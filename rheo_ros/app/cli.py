@@ -126,9 +126,9 @@ def _analyze(args: argparse.Namespace) -> int:
     finally:
         if bar:
             bar.close()
-    for warning in result.warnings:
-        print(f"rheo analyze: warning: {warning}", file=sys.stderr)
     report = result.to_json()
+    for warning in report["warnings"]:
+        print(f"rheo analyze: warning: {warning}", file=sys.stderr)
     _write_json(args.json, report)
     if args.report:
         from rheo_ros.reports.html import write_report

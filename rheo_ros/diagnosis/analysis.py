@@ -21,7 +21,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import SensorNoise
 from rheo_ros.identification.pipeline import contact_depth
-from rheo_ros.identification.pooling import Change, Pool, pool_experiments
+from rheo_ros.identification.pooling import Change, Pool, pool_experiments, pooled
 from rheo_ros.record import Record
 
 
@@ -86,15 +86,53 @@ class Analysis:
     def to_json(self) -> dict[str, Any]:
         """The contract's report: bag, phases, estimate, models, diagnosis; with several
         pushes, ``experiments``: each push's report with the same keys."""
-        report = self._push_json()
-        if self.experiments:
-            # Where the stage met the specimen (m of stage depth; the top markers' sinking):
-            # the set and recovery the earlier pushes left.
-            report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record)}
-                                     for k, e in enumerate(self.experiments, 1)]
-            pools, changes = self.pools()
-            report["pools"] = [p.to_json() for p in pools]
-            report["changes"] = [c.to_json() for c in changes]
+        if not self.experiments:
+            return self._push_json()
+        pools, changes = self.pools()
+        report = self._pooled_json(pools[-1])
+        # Where the stage met the specimen (m of stage depth; the top markers' sinking):
+        # the set and recovery the earlier pushes left.
+        report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record)}
+                                 for k, e in enumerate(self.experiments, 1)]
+        report["pools"] = [p.to_json() for p in pools]
+        report["changes"] = [c.to_json() for c in changes]
+        return report
+
+    def _pooled_json(self, pool: Pool) -> dict[str, Any]:
+        """The top level of a report of several pushes: the pooled fit of the experiments
+        judged one object - the last pool, the object under the stage when the record ends.
+        Each model all members share is pooled by information (``pooled``); its RMS errors
+        are the members' root mean squares (force readings weighted by their count, phases
+        alike), its BIC their sum (independent records). The closed form is pooled by its
+        std (``closed_form_std``, no correlations). The diagnosis is the members' together:
+        adequate when each is, every effect any of them misses, the evidence of each."""
+        numbers = pool.experiments
+        members = [self.experiments[k - 1] for k in numbers]
+        which = f"experiment{'s' if len(numbers) > 1 else ''} {', '.join(map(str, numbers))}"
+        first = members[0]._push_json()
+        report = {"bag": self.bag,
+                  "phases": [ph | {"experiment": k} for k, m in zip(numbers, members) for ph in m.phases()],
+                  "estimate": _pooled_closed_form(members, which), "sensor": first["sensor"]}
+        shared = [m.name for m in members[0].models if all(any(x.name == m.name for x in e.models) for e in members)]
+        report["models"] = [_pooled_model([next(x for x in e.models if x.name == name) for e in members], numbers)
+                            for name in shared]
+        verdicts = [Verdict.of(m.diagnoses) for m in members]
+        missing = list(dict.fromkeys(e for v in verdicts for e in v.missing_effects))
+        adequate = None if any(v.adequate is None for v in verdicts) else all(v.adequate for v in verdicts)
+        finals = {m.final.name for m in members}
+        report["diagnosis"] = {
+            **first["diagnosis"], "steps": [],
+            "missing_effect": missing[0] if missing else None, "missing_effects": missing,
+            "adequate": adequate, "adequate_model": finals.pop() if adequate and len(finals) == 1 else None,
+            "evidence": " ".join(f"Experiment {k}: {v.evidence}" for k, v in zip(numbers, verdicts)),
+            "experiments": list(numbers),
+        }
+        others = [k for k in range(1, len(self.experiments) + 1) if k not in numbers]
+        note = (f"{len(self.experiments)} pushes in the bag: each is an experiment (experiments); the top level "
+                f"is the pooled fit of {which}, judged one object"
+                + (f" (experiments {', '.join(map(str, others))} are another object or the same before it "
+                   "changed: see pools and changes)" if others else ""))
+        report["warnings"] = list(dict.fromkeys(w for m in members for w in m.warnings)) + [note]
         return report
 
     def pools(self) -> tuple[list[Pool], list[Change]]:
@@ -143,3 +181,43 @@ class Analysis:
 
 def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
+
+
+def _pooled_closed_form(members: list[Analysis], which: str) -> dict[str, Any]:
+    """The members' closed forms, each parameter weighted by its inverse variance
+    (``closed_form_std``); a parameter no member determines stays NaN with a null std."""
+    values, stds = {}, {}
+    for k in BASE_PARAMETERS:
+        v = np.array([m.closed_form.params[k] for m in members], float)
+        s = np.array([np.nan if (x := m.closed_form_std()[k]) is None else x for m in members], float)
+        ok = np.isfinite(v) & np.isfinite(s) & (s > 0)
+        w = 1.0 / s[ok] ** 2
+        values[k] = float(np.sum(w * v[ok]) / np.sum(w)) if ok.any() else float("nan")
+        stds[k] = float(1.0 / np.sqrt(np.sum(w))) if ok.any() else None
+    methods = {m.closed_form.method for m in members}
+    return {**values, "std": stds, "method": methods.pop() if len(methods) == 1 else "pooled",
+            "equations": list(dict.fromkeys(q for m in members for q in m.closed_form.equations)),
+            "message": f"{which} pooled by inverse variance"}
+
+
+def _pooled_model(fits: list[ModelFit], numbers: tuple[int, ...]) -> dict[str, Any]:
+    """One model's fits on the experiments of a pool, as one (see ``Analysis._pooled_json``)."""
+    names = tuple(fits[0].estimate.params)
+    pool = pooled([f.estimate for f in fits], names, numbers)
+    counts = np.array([f.prediction_total.size for f in fits], float)
+    rms = np.array([f.rmse_force for f in fits], float)
+    phases = fits[0].rmse_by_phase
+    ratios = {k: np.array([f.estimate.statistics.fit_to_noise.get(k, np.nan) for f in fits], float)
+              for k in fits[0].estimate.statistics.fit_to_noise}
+    return {
+        "name": fits[0].name, "effects": list(fits[0].effects), "forms": fits[0].forms,
+        "params": {k: float(v) for k, v in pool.params.items()},
+        "std": {k: _finite(v) for k, v in pool.std.items()},
+        "rmse_force": float(np.sqrt(np.sum(counts * rms ** 2) / counts.sum())),
+        "rmse_by_phase": {ph: float(np.sqrt(np.mean([f.rmse_by_phase[ph] ** 2 for f in fits]))) for ph in phases},
+        "bic": float(sum(f.bic for f in fits)),
+        "fit_to_noise": {k: _finite(np.sqrt(np.nanmean(r ** 2)) if np.isfinite(r).any() else np.nan)
+                         for k, r in ratios.items()},
+        "message": f"experiments {', '.join(map(str, numbers))} pooled by information (chi-square {pool.chi2:.3g} "
+                   f"on {pool.dof} dof)",
+    }

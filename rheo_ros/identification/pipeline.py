@@ -138,14 +138,22 @@ def relaxation_in_view(record: Record, start: dict[str, float]) -> dict[str, flo
     return {**start, "c2": min(start["c2"], c2)}
 
 
-def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig) -> list[dict[str, float]]:
+def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig,
+               earlier: Estimate | None = None) -> list[dict[str, float]]:
     """Where the whole-record fit starts: the closed forms' solutions and, where the
-    reported one leaves a parameter undetermined, it again with the relaxation in view."""
+    reported one leaves a parameter undetermined, it again with the relaxation in view and
+    ``earlier`` (the fit of the push before on the same specimen: a push that meets a
+    specimen still recovering, after a cancelled one, has no usable closed form, and the
+    object is most likely the same)."""
     starts = list(closed.starts)
     if undetermined(record, closed.estimate, config):
         in_view = relaxation_in_view(record, closed.estimate.params)
         if in_view != closed.estimate.params:
             starts.append(in_view)
+        if earlier is not None:
+            start = {k: float(earlier.params[k]) for k in BASE_PARAMETERS}
+            if all(np.isfinite(v) for v in start.values()) and start not in starts:
+                starts.append(start)
     return starts
 
 

@@ -99,6 +99,14 @@ def _merge(members: list[tuple[int, np.ndarray, np.ndarray]], names: tuple[str, 
     return Pool(tuple(k for k, _, _ in members), names, values, cov, distance, max(dof, 0))
 
 
+def pooled(estimates: Sequence[Estimate], names: Sequence[str], numbers: Sequence[int] | None = None) -> Pool:
+    """The joint estimate of ``names`` from experiments judged one object (no change test):
+    each estimate's information added. ``numbers``: their experiment numbers (default 1..n)."""
+    numbers = numbers or range(1, len(estimates) + 1)
+    names = tuple(names)
+    return _merge([(k, *_information(e, names)) for k, e in zip(numbers, estimates)], names)
+
+
 def pool_experiments(estimates: Sequence[Estimate], names: tuple[str, ...] = BASE_PARAMETERS[:3],
                      level: float = LEVEL) -> tuple[list[Pool], list[Change]]:
     """Pool successive experiments' estimates (in order, numbered from 1): each joins the

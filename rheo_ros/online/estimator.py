@@ -272,10 +272,12 @@ class PhaseIdentifier:
                                          rec.profile(), rec.force_t, rec.marker_t[:1], tabulated=True)
         return self._update(job, closed.estimate, force_error(rec, predicted.force)[0]), closed
 
-    def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None) -> tuple[Update, Estimate]:
+    def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None,
+            earlier: Estimate | None = None) -> tuple[Update, Estimate]:
         """The whole-record fit of the job's data (``pipeline.fit_from_starts``) from the
-        closed form's starts or, where it has none, from ``previous`` (this push's last
-        fit), checked for a relaxation the data do not show.
+        closed form's starts (with ``earlier``, the last fit of the push before, where the
+        closed form leaves a parameter open) or, where it has none, from ``previous`` (this
+        push's last fit) or ``earlier``, checked for a relaxation the data do not show.
 
         Raises:
             RecordError: no start, or the fit failed from every start.
@@ -285,9 +287,11 @@ class PhaseIdentifier:
             # Superseded within release_interval s: one start, not the final's screening.
             starts, note = [interim_start(rec, closed, self.config)], ""
         elif closed is not None:
-            starts, note = fit_starts(rec, closed, self.config), ""
+            starts, note = fit_starts(rec, closed, self.config, earlier), ""
         elif previous is not None:
             starts, note = [previous.params], "no closed form; fit started from the previous update"
+        elif earlier is not None:
+            starts, note = [earlier.params], "no closed form; fit started from the push before"
         else:
             e = job.event
             raise RecordError(f"experiment {e.experiment} {e.name}: no closed form and no earlier fit to start from")
@@ -369,7 +373,7 @@ class OnlineEstimator:
         self.push_start: float | None = None
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
         self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
-        self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
+        self._fits: dict[int, Estimate] = {}      # the last whole-record fit of this push and the one before
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
         # Releases whose interim jobs are not all out: [experiment, profile, next due, release
         # end (inf while open)]. An interim is due every release_interval s of data before the
@@ -549,10 +553,12 @@ class OnlineEstimator:
             yield self.fit(job, closed)
 
     def fit(self, job: Job, closed: ClosedForm | None,
-            run: Callable[[Job, ClosedForm | None, Estimate | None], tuple[Update, Estimate]] | None = None
-            ) -> Update:
+            run: Callable[[Job, ClosedForm | None, Estimate | None, Estimate | None], tuple[Update, Estimate]]
+            | None = None) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
-        no solution, from this push's previous fit.
+        no solution, from this push's previous fit; the last fit of the push before helps
+        where the closed form leaves a parameter open (``PhaseIdentifier.fit``). Fits run in
+        job order, so that one is the earlier push's final, as ``rheo analyze`` has it.
 
         Args:
             closed: the job's closed form (None: it has none).
@@ -562,8 +568,11 @@ class OnlineEstimator:
             RecordError: no closed form and no previous fit to start from.
         """
         e = job.event
-        update, fit = (run or self.identify.fit)(job, closed, self._fits.get(e.experiment))
-        self._fits = {e.experiment: fit}
+        before = [k for k in self._fits if k < e.experiment]
+        earlier = self._fits[max(before)] if before else None
+        update, fit = (run or self.identify.fit)(job, closed, self._fits.get(e.experiment), earlier)
+        # Bounded: this push's latest fit and the last of the push before it.
+        self._fits = ({max(before): earlier} if before else {}) | {e.experiment: fit}
         return update
 
     def last_fit(self, experiment: int) -> Estimate | None:

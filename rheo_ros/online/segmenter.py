@@ -283,7 +283,8 @@ class PhaseSegmenter:
         self._release_rest.extend(d for _, d in self._run)
         self._run = []
         self._release_rest.append(depth)
-        return []
+        # Marker frames wait for the stage to pass them (``_judge_settled``): judge them now.
+        return self._judge_settled() if self._pending_release is not None else []
 
     # -- tactile ------------------------------------------------------------------------
 
@@ -352,15 +353,18 @@ class PhaseSegmenter:
         before = [tf for tf, _ in self._frames if tf < t]
         return before[-1] if before else (self._t_release if self._t_release is not None else t)
 
-    def _judge_settled(self) -> list[PhaseEvent]:
+    def _judge_settled(self, until: float | None = None) -> list[PhaseEvent]:
         """Release ends at the first frame whose window (``settle_window`` s back, all
         after the stage left) shows the mesh still within its noise. Every frame is
-        judged in stamp order, however the streams interleave."""
+        judged in stamp order, however the streams interleave, and only once the stage
+        stream has passed it (``until``, default its last stamp): a frame the stage has not
+        reached may already belong to the next push (markers ahead of a lagging stage)."""
         W, t_release = self.config.settle_window, self._pending_release
+        until = self._last["stage"] if until is None else until
         frames = list(self._frames)
         times = np.array([tf for tf, _ in frames])
         peak = float(np.max(self._hi - self._lo)) if self._lo is not None else 0.0
-        for j in np.flatnonzero(times > self._judged):
+        for j in np.flatnonzero((times > self._judged) & (times <= until)):
             t_now = float(times[j])
             self._judged = t_now
             if t_now - t_release > self.config.max_release:
@@ -391,6 +395,9 @@ class PhaseSegmenter:
         of a bag, or when every topic went silent); nothing when no release is open."""
         if self.state != "release" or self._pending_release is None:
             return []
+        settled = self._judge_settled(until=np.inf)   # frames the stage stream never passed
+        if settled:
+            return settled
         t_end = self._frames[-1][0] if self._frames else self._t_release
         return self._end_release(max(t_end, self._t_release), t_end, why)
 
