@@ -75,7 +75,8 @@ def test_regenerated_bag_carries_the_same_messages(name, tmp_path):
 
 
 def test_same_seed_same_bag_other_seed_other_noise(tmp_path):
-    setup = Setup(load_params(None))
+    # A short run on a coarse mesh: the noise draws, not the mechanics, are under test.
+    setup = Setup({**load_params(None), "simulator.refine": 8, "stage.keep_time": 5.0, "stage.release_time": 5.0})
     for name, seed in (("a", 5), ("b", 5), ("c", 6)):
         simulate_to_bag(setup, seed, tmp_path / name)
     a, b, c = (read_bag(tmp_path / n) for n in "abc")

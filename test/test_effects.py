@@ -9,8 +9,10 @@ from rheo_ros.rig.simulator import simulate_run
 
 def run(effect: str | None):
     params = load_params(None)
-    # Noise-free sensors, so that any difference is the effect's.
+    # Noise-free sensors, so that any difference is the effect's; a 33 x 33-node mesh and a
+    # 30 s release (where each effect shows does not need the finer mesh or the long tail).
     params.update({"tactile.noise": 0.0, "tactile.resolution": 0.0, "tactile.threshold": 0.0, "markers.noise": 0.0,
+                   "simulator.refine": 8, "stage.release_time": 30.0,
                    "simulator.effects": [effect] if effect else [""]})
     setup = Setup(params)
     r = simulate_run(setup, 0)

@@ -115,6 +115,7 @@ class PhaseSegmenter:
         self._pending_release: float | None = None   # release start not yet judged on markers
         self._release_frames = 0                      # marker frames after the release's start
         self._judged = -np.inf
+        self._unjudged: deque[float] = deque()        # stamps of a release's frames not judged yet
         self.release_reason = ""
 
     # -- stage -------------------------------------------------------------------------
@@ -255,6 +256,7 @@ class PhaseSegmenter:
         self._release_min = float(rd.min())
         self._release_rest: deque[float] = deque(maxlen=self.REST)
         self._judged = t_leave
+        self._unjudged = deque(tf for tf, _ in self._frames if tf > t_leave)
         events = [PhaseEvent(self.experiment, "keep", t_pull_end, t_leave, t, self._held_count)]
         return events + self._judge_settled()
 
@@ -333,6 +335,7 @@ class PhaseSegmenter:
         self._frames.append((t, positions))
         if self._pending_release is not None and t > self._pending_release:
             self._release_frames += 1
+            self._unjudged.append(t)
         if self._lo is None or self._lo.shape != positions.shape:
             self._lo, self._hi = positions.copy(), positions.copy()
         np.minimum(self._lo, positions, out=self._lo)
@@ -361,6 +364,10 @@ class PhaseSegmenter:
         reached may already belong to the next push (markers ahead of a lagging stage)."""
         W, t_release = self.config.settle_window, self._pending_release
         until = self._last["stage"] if until is None else until
+        while self._unjudged and self._unjudged[0] <= self._judged:
+            self._unjudged.popleft()
+        if not self._unjudged or self._unjudged[0] > until:
+            return []   # called at every stage sample: nothing new to judge is the common case
         frames = list(self._frames)
         times = np.array([tf for tf, _ in frames])
         peak = float(np.max(self._hi - self._lo)) if self._lo is not None else 0.0
@@ -412,6 +419,7 @@ class PhaseSegmenter:
         # The stage stream goes back to rest once it passes the release's end.
         self.state, self._settled_at = ("settled", t_end) if why != "next push" else ("rest", t_end)
         self._pending_release, self._t_pull, self._run = None, None, []
+        self._unjudged.clear()
         last = self._frames[-1][1] if self._frames else None
         self._lo = None if last is None else last.copy()
         self._hi = None if last is None else last.copy()
