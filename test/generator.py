@@ -66,7 +66,9 @@ class Profile:
     pushes: the program is run that many times on the same specimen, every push to the
     same absolute stage depth; push i + 1's stage leaves depth 0 ``pause`` s after the
     end of push i's release_time (start_delay only precedes the first push). The record
-    ends at the end of the last push's release_time."""
+    ends at the end of the last push's release_time. fresh: the pushes (0-based) made on
+    a new block of the same material and size, put in place at rest when the pause before
+    them begins (at least 3 s: the block at rest in the camera before the stage moves)."""
     start_delay: float = 1.0
     velocity: float = 5e-4
     depth: float = 0.010
@@ -75,8 +77,12 @@ class Profile:
     retract_speed: float | None = None
     pushes: int = 1
     pause: float = 0.0
+    fresh: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
+        if any(not 0 < i < self.pushes for i in self.fresh) or (self.fresh and self.pause < 3.0):
+            raise ValueError(f"fresh: {self.fresh} must name later pushes (1..{self.pushes - 1}) with a pause "
+                             f"of at least 3 s (pause {self.pause:g} s)")
         if not isinstance(self.pushes, (int, np.integer)) or self.pushes < 1:
             raise ValueError(f"pushes: {self.pushes} is not a whole number >= 1")
         if not self.pause >= 0.0:
@@ -322,7 +328,14 @@ def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarr
         t0, t1, t2, t3 = profile.push_knots(i)
         at_start: np.ndarray = y
         c: float | None = t0
-        if i > 0:   # free since a: wait for the stage to meet the top
+        if i in profile.fresh:   # the old block recovers until the pause, then a new one at rest
+            swap = max(a, profile.push_knots(i - 1)[3])
+            if swap > a:
+                fill(a, swap, solve_ivp(rhs_free, (a, swap), y, **opts), None)
+            y, a = np.zeros_like(y), swap
+            eps[(t >= swap) & (t < t0)] = 0.0
+            at_start, c = y, t0
+        elif i > 0:   # free since a: wait for the stage to meet the top
             sol = solve_ivp(rhs_free, (a, t2), y, events=touch, **opts)
             c = float(sol.t_events[0][0]) if sol.t_events[0].size else None
             fill(a, t2 if c is None else c, sol, None)

@@ -211,7 +211,9 @@ def test_one_push_is_the_default_and_the_profile_checks_its_pushes() -> None:
     p = replace(PROFILE, pushes=3, pause=7.0)
     period = p.depth / p.velocity + p.keep_time + p.release_time + p.pause
     assert p.knots[:3] == PROFILE.knots[:3] and p.knots[3] == pytest.approx(PROFILE.knots[3] + 2 * period)
-    for bad in ({"pushes": 0}, {"pushes": 2.0}, {"pause": -1.0}, {"pushes": 2, "retract_speed": 1e-4, "release_time": 50.0}):
+    for bad in ({"pushes": 0}, {"pushes": 2.0}, {"pause": -1.0}, {"pushes": 2, "retract_speed": 1e-4, "release_time": 50.0},
+                {"pushes": 2, "pause": 5.0, "fresh": (0,)}, {"pushes": 2, "pause": 5.0, "fresh": (2,)},
+                {"pushes": 2, "pause": 2.0, "fresh": (1,)}):
         with pytest.raises(ValueError):
             replace(PROFILE, **bad)
 

@@ -22,7 +22,13 @@ from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.noise import sensor_noise
-from rheo_ros.identification.pipeline import closed_form, fit_from_starts, fit_starts, relaxation_unseen
+from rheo_ros.identification.pipeline import (
+    closed_form,
+    contact_depth,
+    fit_from_starts,
+    fit_starts,
+    relaxation_unseen,
+)
 from rheo_ros.io.bag import bag_samples, read_params
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
@@ -157,6 +163,10 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     forward = setup.forward_model()
     noise = sensor_noise(record)
     warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
+    if number > 1 and not record.profile().before:
+        warnings.append(f"experiment {number}: the stage met the specimen at {contact_depth(record) * 1e3:.3f} mm, "
+                        "at rest: another object, or one that recovered fully; modelled from rest, not from the "
+                        "pushes before")
     say("closed form (eq. 6, 7, 10 / 14-17)")
     closed = closed_form("release", record, forward)
     if closed.failed:

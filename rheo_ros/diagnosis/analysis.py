@@ -92,7 +92,9 @@ class Analysis:
         report = self._pooled_json(pools[-1])
         # Where the stage met the specimen (m of stage depth; the top markers' sinking):
         # the set and recovery the earlier pushes left.
-        report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record)}
+        # from_rest: a later push that met a specimen at rest (met_at_rest), modelled from rest.
+        report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record),
+                                                   "from_rest": k > 1 and not e.record.profile().before}
                                  for k, e in enumerate(self.experiments, 1)]
         report["pools"] = [p.to_json() for p in pools]
         report["changes"] = [c.to_json() for c in changes]

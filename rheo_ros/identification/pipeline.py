@@ -101,6 +101,16 @@ def contact_depth(record: Record) -> float:
     return float(np.clip(profile.depth - sank, 0.0, profile.depth))
 
 
+def met_at_rest(record: Record) -> bool:
+    """A later push (``profile.before``) that met the specimen at the stage's zero
+    (``contact_depth`` within ``SHALLOW_CONTACT`` of the depth): whatever the pushes before
+    did, the specimen is at rest in its first shape - another object, or one that
+    recovered fully - and is modelled from rest. (The three-element model's state is two
+    non-negative strains summing to the top's sinking: none left, no state left.)"""
+    profile = record.profile()
+    return bool(profile.before) and contact_depth(record) <= SHALLOW_CONTACT * profile.depth
+
+
 def as_fresh_push(record: Record) -> Record:
     """A push after others (``profile.before``), as the paper's closed forms see a push:
     from a specimen at rest, starting where the stage met it (``contact_depth``), as deep
@@ -109,9 +119,9 @@ def as_fresh_push(record: Record) -> Record:
     profile = record.profile()
     if not profile.before:
         return record
-    met = contact_depth(record)
-    if met <= SHALLOW_CONTACT * profile.depth:
+    if met_at_rest(record):
         return replace(record, stage_profile=replace(profile, before=()))
+    met = contact_depth(record)
     late = met / profile.velocity
     fresh = replace(profile, before=(), depth=profile.depth - met, start_delay=profile.start_delay + late)
     return replace(record, stage_profile=fresh)

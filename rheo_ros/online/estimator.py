@@ -49,6 +49,7 @@ from rheo_ros.identification.pipeline import (
     fit_starts,
     force_error,
     interim_start,
+    met_at_rest,
     relaxation_unseen,
     undetermined,
 )
@@ -375,6 +376,7 @@ class OnlineEstimator:
         self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
         self._fits: dict[int, Estimate] = {}      # the last whole-record fit of this push and the one before
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
+        self.from_rest: set[int] = set()           # later pushes that met a specimen at rest (met_at_rest)
         # Releases whose interim jobs are not all out: [experiment, profile, next due, release
         # end (inf while open)]. An interim is due every release_interval s of data before the
         # release's end, however the streams interleave.
@@ -526,12 +528,22 @@ class OnlineEstimator:
         force = parts["force"][1].reshape(-1, self.mesh.cols)
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
         self.sensor = self.setup.sensor(self.readout, force, markers)
+        if e.experiment in self.from_rest:
+            profile = replace(profile, before=())
         try:
-            return Record(mesh=self.mesh, stage_t=parts["stage"][0], stage_depth=parts["stage"][1],
-                          force_t=parts["force"][0], force=force, marker_t=parts["markers"][0], markers=markers,
-                          source=f"experiment {e.experiment} {e.name}", stage_profile=profile, sensor=self.sensor)
+            record = Record(mesh=self.mesh, stage_t=parts["stage"][0], stage_depth=parts["stage"][1],
+                            force_t=parts["force"][0], force=force, marker_t=parts["markers"][0], markers=markers,
+                            source=f"experiment {e.experiment} {e.name}", stage_profile=profile, sensor=self.sensor)
         except RecordError:
             return None
+        if e.name != "pull" and met_at_rest(record):
+            # The data decide: the stage met a specimen at rest, so the pushes before are
+            # not its history (another object, or one that recovered fully). From the keep
+            # on (the hold shows where the stage met it), this push and the next start there.
+            self.from_rest = {k for k in self.from_rest if k >= e.experiment - 1} | {e.experiment}
+            self.segmenter.history = tuple(h for h in self.segmenter.history if h.t_pull_start >= profile.t_pull_start)
+            record = replace(record, stage_profile=replace(profile, before=()))
+        return record
 
     def run_job(self, job: Job) -> Iterator[Update]:
         """The updates of a completed phase, each as soon as it is computed: the closed
