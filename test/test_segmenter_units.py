@@ -143,6 +143,19 @@ def test_a_release_settles_only_once_the_stage_stream_has_passed_it():
     assert release.t_end == in_order[0].t_end and release.t_start == in_order[0].t_start
 
 
+def test_a_stage_stream_that_stopped_no_longer_holds_the_release_back():
+    """The stage stream stops 1 s after the let-go, the markers go on: no release until the
+    caller says the stage went silent (``judge_ahead_of_stage``), then the same end as in
+    stamp order."""
+    in_order = [e for e in feed(PhaseSegmenter(), stream()) if e.name == "release"]
+    seg = PhaseSegmenter()
+    events = feed(seg, [m for m in stream() if m[0] != "stage" or m[1] < T_KEEP_END + 1.0])
+    assert [e.name for e in events if e.name == "release"] == []
+    [release] = seg.judge_ahead_of_stage()
+    assert (release.t_start, release.t_end) == (in_order[0].t_start, in_order[0].t_end)
+    assert seg.judge_ahead_of_stage() == []
+
+
 def test_a_release_still_moving_at_max_release_ends_there():
     seg = PhaseSegmenter(SegmenterConfig(max_release=2.0))
     events = feed(seg, stream())

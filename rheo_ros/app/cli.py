@@ -149,7 +149,7 @@ def format_analysis(report: dict[str, Any]) -> str:
     lines = [f"{report['bag']}: " + ", ".join(f"{p['name']} {p['t_start']:.2f}-{p['t_end']:.2f} s"
                                              for p in report["phases"])]
     lines.append("closed form (" + est["method"] + "): " + ", ".join(
-        f"{k} {est[k]:.4g}" for k in ("E", "c1", "c2", "gamma")))
+        f"{k} {_number(est[k])}" for k in ("E", "c1", "c2", "gamma")))
     lines.append(f"{'model':<52} {'RMS force (N)':>13} {'pull':>9} {'keep':>9} {'release':>9} {'BIC':>12}")
     for m in report["models"]:
         ph = m["rmse_by_phase"]
@@ -157,10 +157,15 @@ def format_analysis(report: dict[str, Any]) -> str:
             f"{ph.get(p, float('nan')):>9.3g}" for p in ("pull", "keep", "release")) + f" {m['bic']:>12.6g}")
     final = report["models"][-1]
     lines.append(f"{final['name']}: " + ", ".join(
-        f"{k} {v:.4g}" + (f" +- {final['std'][k]:.2g}" if final["std"].get(k) is not None else " (not determined)")
+        f"{k} {_number(v)}" + (f" +- {final['std'][k]:.2g}" if final["std"].get(k) is not None else " (not determined)")
         for k, v in final["params"].items()))
     lines.append(report["diagnosis"]["evidence"])
     return "\n".join(lines)
+
+
+def _number(value: float | None) -> str:
+    """A value of the report (null: no data determine it)."""
+    return "none" if value is None else f"{value:.4g}"
 
 
 def _demo(args: argparse.Namespace) -> int:

@@ -115,15 +115,20 @@ class Analysis:
         report = {"bag": self.bag,
                   "phases": [ph | {"experiment": k} for k, m in zip(numbers, members) for ph in m.phases()],
                   "estimate": _pooled_closed_form(members, which), "sensor": first["sensor"]}
-        shared = [m.name for m in members[0].models if all(any(x.name == m.name for x in e.models) for e in members)]
-        report["models"] = [_pooled_model([next(x for x in e.models if x.name == name) for e in members], numbers)
-                            for name in shared]
+        # A model is shared when every member fitted it with the same parameters (an effect's
+        # form may differ between pushes: two relaxation arms in one, one in another).
+        def same(x: ModelFit, m: ModelFit) -> bool:
+            return x.name == m.name and list(x.estimate.params) == list(m.estimate.params)
+
+        shared = [m for m in members[0].models if all(any(same(x, m) for x in e.models) for e in members)]
+        report["models"] = [_pooled_model([next(x for x in e.models if same(x, m)) for e in members], numbers)
+                            for m in shared]
         verdicts = [Verdict.of(m.diagnoses) for m in members]
         missing = list(dict.fromkeys(e for v in verdicts for e in v.missing_effects))
         adequate = None if any(v.adequate is None for v in verdicts) else all(v.adequate for v in verdicts)
         finals = {m.final.name for m in members}
         report["diagnosis"] = {
-            **first["diagnosis"], "steps": [],
+            **first["diagnosis"], "steps": [],   # candidates, undecided: the first member's (experiments)
             "missing_effect": missing[0] if missing else None, "missing_effects": missing,
             "adequate": adequate, "adequate_model": finals.pop() if adequate and len(finals) == 1 else None,
             "evidence": " ".join(f"Experiment {k}: {v.evidence}" for k, v in zip(numbers, verdicts)),
@@ -134,7 +139,7 @@ class Analysis:
                 f"is the pooled fit of {which}, judged one object"
                 + (f" (experiments {', '.join(map(str, others))} are another object or the same before it "
                    "changed: see pools and changes)" if others else ""))
-        report["warnings"] = list(dict.fromkeys(w for m in members for w in m.warnings)) + [note]
+        report["warnings"] = list(dict.fromkeys(w for m in self.experiments for w in m.warnings)) + [note]
         return report
 
     def pools(self) -> tuple[list[Pool], list[Change]]:
@@ -187,14 +192,14 @@ def _finite(x: float) -> float | None:
 
 def _pooled_closed_form(members: list[Analysis], which: str) -> dict[str, Any]:
     """The members' closed forms, each parameter weighted by its inverse variance
-    (``closed_form_std``); a parameter no member determines stays NaN with a null std."""
+    (``closed_form_std``); a parameter no member determines is null, its std too."""
     values, stds = {}, {}
     for k in BASE_PARAMETERS:
         v = np.array([m.closed_form.params[k] for m in members], float)
         s = np.array([np.nan if (x := m.closed_form_std()[k]) is None else x for m in members], float)
         ok = np.isfinite(v) & np.isfinite(s) & (s > 0)
         w = 1.0 / s[ok] ** 2
-        values[k] = float(np.sum(w * v[ok]) / np.sum(w)) if ok.any() else float("nan")
+        values[k] = float(np.sum(w * v[ok]) / np.sum(w)) if ok.any() else None
         stds[k] = float(1.0 / np.sqrt(np.sum(w))) if ok.any() else None
     methods = {m.closed_form.method for m in members}
     return {**values, "std": stds, "method": methods.pop() if len(methods) == 1 else "pooled",
@@ -208,12 +213,12 @@ def _pooled_model(fits: list[ModelFit], numbers: tuple[int, ...]) -> dict[str, A
     pool = pooled([f.estimate for f in fits], names, numbers)
     counts = np.array([f.prediction_total.size for f in fits], float)
     rms = np.array([f.rmse_force for f in fits], float)
-    phases = fits[0].rmse_by_phase
+    phases = [ph for ph in fits[0].rmse_by_phase if all(ph in f.rmse_by_phase for f in fits)]
     ratios = {k: np.array([f.estimate.statistics.fit_to_noise.get(k, np.nan) for f in fits], float)
               for k in fits[0].estimate.statistics.fit_to_noise}
     return {
         "name": fits[0].name, "effects": list(fits[0].effects), "forms": fits[0].forms,
-        "params": {k: float(v) for k, v in pool.params.items()},
+        "params": {k: _finite(v) for k, v in pool.params.items()},   # null: no push determines it
         "std": {k: _finite(v) for k, v in pool.std.items()},
         "rmse_force": float(np.sqrt(np.sum(counts * rms ** 2) / counts.sum())),
         "rmse_by_phase": {ph: float(np.sqrt(np.mean([f.rmse_by_phase[ph] ** 2 for f in fits]))) for ph in phases},

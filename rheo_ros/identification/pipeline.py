@@ -93,8 +93,7 @@ def contact_depth(record: Record) -> float:
     the earlier ones left (and whatever recovery is still under way)."""
     profile, mesh = record.profile(), record.mesh
     top = mesh.nodes[:, 1] >= mesh.nodes[:, 1].max() - 1e-12
-    before = record.marker_t < profile.t_pull_start
-    hold = (record.marker_t > profile.t_pull_end) & (record.marker_t < profile.t_keep_end)
+    before, hold = _frames_before(record), _frames_held(record)
     if not before.any() or not hold.any():
         return 0.0
     sank = float(np.mean(record.markers[before][:, top, 1]) - np.mean(record.markers[hold][:, top, 1]))
@@ -108,7 +107,18 @@ def met_at_rest(record: Record) -> bool:
     recovered fully - and is modelled from rest. (The three-element model's state is two
     non-negative strains summing to the top's sinking: none left, no state left.)"""
     profile = record.profile()
-    return bool(profile.before) and contact_depth(record) <= SHALLOW_CONTACT * profile.depth
+    if not profile.before or not (_frames_before(record).any() and _frames_held(record).any()):
+        return False   # no view of the top before the push or during the hold: cannot tell
+    return contact_depth(record) <= SHALLOW_CONTACT * profile.depth
+
+
+def _frames_before(record: Record) -> np.ndarray:
+    return record.marker_t < record.profile().t_pull_start
+
+
+def _frames_held(record: Record) -> np.ndarray:
+    profile = record.profile()
+    return (record.marker_t > profile.t_pull_end) & (record.marker_t < profile.t_keep_end)
 
 
 def as_fresh_push(record: Record) -> Record:
@@ -152,9 +162,9 @@ def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig,
                earlier: Estimate | None = None) -> list[dict[str, float]]:
     """Where the whole-record fit starts: the closed forms' solutions and, where the
     reported one leaves a parameter undetermined, it again with the relaxation in view and
-    ``earlier`` (the fit of the push before on the same specimen: a push that meets a
-    specimen still recovering, after a cancelled one, has no usable closed form, and the
-    object is most likely the same)."""
+    ``earlier`` (the final fit of the push before: a push that meets a specimen still
+    recovering, after a cancelled one, has no usable closed form, and the object is most
+    likely the same; a start only, kept if it fits best)."""
     starts = list(closed.starts)
     if undetermined(record, closed.estimate, config):
         in_view = relaxation_in_view(record, closed.estimate.params)

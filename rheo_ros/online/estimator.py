@@ -374,9 +374,10 @@ class OnlineEstimator:
         self.push_start: float | None = None
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
         self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
-        self._fits: dict[int, Estimate] = {}      # the last whole-record fit of this push and the one before
+        self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
+        self._final: tuple[int, Estimate] | None = None   # the last push's final fit
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
-        self.from_rest: set[int] = set()           # later pushes that met a specimen at rest (met_at_rest)
+        self.at_rest_since = -np.inf               # pull start of the last later push met at rest (met_at_rest)
         # Releases whose interim jobs are not all out: [experiment, profile, next due, release
         # end (inf while open)]. An interim is due every release_interval s of data before the
         # release's end, however the streams interleave.
@@ -441,6 +442,7 @@ class OnlineEstimator:
                 # Bounded memory: a push this long is given up (reported by the caller).
                 self.segmenter = PhaseSegmenter(self.segmenter.config)
                 self.push_start, self.pending, self._interims = None, [], []
+                self._final, self.at_rest_since = None, -np.inf   # numbering starts again at 1
                 self.dropped_pushes += 1
                 keep_from = latest - margin
         for s in self.streams.values():
@@ -479,8 +481,9 @@ class OnlineEstimator:
         if not self.release_open:
             return []
         events = self.segmenter.close_release(why)
-        for e in events:
-            self._cut_short[e.experiment] = why
+        if self.segmenter.release_reason == why:   # not settled on frames the stage never passed
+            for e in events:
+                self._cut_short[e.experiment] = why
         return self._took(events)
 
     def ready_jobs(self, silent: Iterable[str] = ()) -> list[Job]:
@@ -494,6 +497,10 @@ class OnlineEstimator:
         """
         jobs = []
         silent = set(silent)
+        if "stage" in silent and self.release_open:
+            # Markers wait for the stage stream to pass them before a release settles; a
+            # stage stream that stopped no longer holds them back.
+            self._took(self.segmenter.judge_ahead_of_stage())
         while True:
             self._interims = [r for r in self._interims if r[2] < r[3]]
             interim = self._interims[0] if self._interims else None
@@ -528,8 +535,8 @@ class OnlineEstimator:
         force = parts["force"][1].reshape(-1, self.mesh.cols)
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
         self.sensor = self.setup.sensor(self.readout, force, markers)
-        if e.experiment in self.from_rest:
-            profile = replace(profile, before=())
+        # Pushes before the last one found at rest are another object's (or fully undone).
+        profile = replace(profile, before=tuple(h for h in profile.before if h.t_pull_start >= self.at_rest_since))
         try:
             record = Record(mesh=self.mesh, stage_t=parts["stage"][0], stage_depth=parts["stage"][1],
                             force_t=parts["force"][0], force=force, marker_t=parts["markers"][0], markers=markers,
@@ -540,8 +547,7 @@ class OnlineEstimator:
             # The data decide: the stage met a specimen at rest, so the pushes before are
             # not its history (another object, or one that recovered fully). From the keep
             # on (the hold shows where the stage met it), this push and the next start there.
-            self.from_rest = {k for k in self.from_rest if k >= e.experiment - 1} | {e.experiment}
-            self.segmenter.history = tuple(h for h in self.segmenter.history if h.t_pull_start >= profile.t_pull_start)
+            self.at_rest_since = max(self.at_rest_since, profile.t_pull_start)
             record = replace(record, stage_profile=replace(profile, before=()))
         return record
 
@@ -568,9 +574,9 @@ class OnlineEstimator:
             run: Callable[[Job, ClosedForm | None, Estimate | None, Estimate | None], tuple[Update, Estimate]]
             | None = None) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
-        no solution, from this push's previous fit; the last fit of the push before helps
-        where the closed form leaves a parameter open (``PhaseIdentifier.fit``). Fits run in
-        job order, so that one is the earlier push's final, as ``rheo analyze`` has it.
+        no solution, from this push's previous fit; the final fit of the push before helps
+        where the closed form leaves a parameter open (``PhaseIdentifier.fit``), as ``rheo
+        analyze`` has it.
 
         Args:
             closed: the job's closed form (None: it has none).
@@ -580,11 +586,11 @@ class OnlineEstimator:
             RecordError: no closed form and no previous fit to start from.
         """
         e = job.event
-        before = [k for k in self._fits if k < e.experiment]
-        earlier = self._fits[max(before)] if before else None
+        earlier = self._final[1] if self._final and self._final[0] < e.experiment else None
         update, fit = (run or self.identify.fit)(job, closed, self._fits.get(e.experiment), earlier)
-        # Bounded: this push's latest fit and the last of the push before it.
-        self._fits = ({max(before): earlier} if before else {}) | {e.experiment: fit}
+        self._fits = {e.experiment: fit}
+        if job.final:
+            self._final = (e.experiment, fit)   # as rheo analyze has it: the push's final fit
         return update
 
     def last_fit(self, experiment: int) -> Estimate | None:

@@ -115,7 +115,7 @@ class PhaseSegmenter:
         self._pending_release: float | None = None   # release start not yet judged on markers
         self._release_frames = 0                      # marker frames after the release's start
         self._judged = -np.inf
-        self._unjudged: deque[float] = deque()        # stamps of a release's frames not judged yet
+        self._unjudged: deque[float] = deque(maxlen=self.MAX_FRAMES)   # a release's frames not judged yet
         self.release_reason = ""
 
     # -- stage -------------------------------------------------------------------------
@@ -256,7 +256,7 @@ class PhaseSegmenter:
         self._release_min = float(rd.min())
         self._release_rest: deque[float] = deque(maxlen=self.REST)
         self._judged = t_leave
-        self._unjudged = deque(tf for tf, _ in self._frames if tf > t_leave)
+        self._unjudged = deque((tf for tf, _ in self._frames if tf > t_leave), maxlen=self.MAX_FRAMES)
         events = [PhaseEvent(self.experiment, "keep", t_pull_end, t_leave, t, self._held_count)]
         return events + self._judge_settled()
 
@@ -397,12 +397,19 @@ class PhaseSegmenter:
         self._trim(self._judged - W - 1e-6)
         return []
 
+    def judge_ahead_of_stage(self) -> list[PhaseEvent]:
+        """Judge every marker frame of an open release, also those the stage stream has not
+        reached (it stopped): the release's end if the mesh settled; nothing otherwise."""
+        if self.state != "release" or self._pending_release is None:
+            return []
+        return self._judge_settled(until=np.inf)
+
     def close_release(self, why: str) -> list[PhaseEvent]:
         """End a release still open at the last marker frame (the data stopped: at the end
         of a bag, or when every topic went silent); nothing when no release is open."""
         if self.state != "release" or self._pending_release is None:
             return []
-        settled = self._judge_settled(until=np.inf)   # frames the stage stream never passed
+        settled = self.judge_ahead_of_stage()   # frames the stage stream never passed
         if settled:
             return settled
         t_end = self._frames[-1][0] if self._frames else self._t_release
