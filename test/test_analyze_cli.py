@@ -62,7 +62,18 @@ def without_markers(tmp_path: Path) -> list[str]:
     return [str(tmp_path / "bag")]
 
 
+def noise_for_metadata(tmp_path: Path) -> Path:
+    """The reference bag with metadata.yaml overwritten by 4 kB of random bytes."""
+    import numpy as np
+
+    bag = tmp_path / "bag"
+    shutil.copytree(BAGS / "clean_short_keep", bag)
+    (bag / "metadata.yaml").write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    return bag
+
+
 CASES = {
+    "metadata of random bytes": (lambda tmp: [str(noise_for_metadata(tmp))], r"metadata.yaml: not text"),
     "no stored parameters": (without_params, r"bag: no parameters in the bag's metadata; give --params-file"),
     "missing topic": (without_markers, r"bag: /markers/mesh: no messages|bag: /stage/joint_states: no messages"),
     "not a bag": (lambda tmp: [str(tmp)], r"not a rosbag2 directory"),
@@ -131,3 +142,24 @@ def test_the_json_closed_form_recovers_the_truth_on_clean_bags(name, tmp_path):
         assert abs(est[k] - v) < 3 * est["std"][k], (k, est[k], est["std"][k])
         assert est["std"][k] < 0.05 * abs(v), (k, est["std"][k])
 
+
+
+@pytest.mark.parametrize("args,pattern", [
+    (["--loop", "0"], r"argument --loop: 0 must be at least 1"),
+    (["--loop", "-1"], r"argument --loop: -1 must be at least 1"),
+    (["--topics", "/nobody"], r"/nobody: not in the bag"),
+])
+def test_play_refuses_what_it_cannot_play_in_one_line(args, pattern):
+    """``rheo play --loop -1`` played nothing and exited 0 (issue 21); a topic not in the bag."""
+    import re
+
+    out = rheo("play", str(BAGS / "clean_short_keep"), *args)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert re.search(pattern, out.stderr.strip().splitlines()[-1]), out.stderr
+
+
+def test_play_of_a_bag_with_random_metadata_says_which_bag_in_one_line(tmp_path):
+    out = rheo("play", str(noise_for_metadata(tmp_path)))
+    lines = out.stderr.strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
+    assert lines[0].startswith("rheo: error: ") and "bag: cannot read bag" in lines[0], lines[0]

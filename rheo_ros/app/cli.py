@@ -186,6 +186,17 @@ def positive(text: str) -> float:
     return value
 
 
+def passes(text: str) -> int:
+    """An argparse type: a whole number of passes, at least one."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rheo", description="Identify rheological parameters (E, c1, c2, Poisson ratio).")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -247,7 +258,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--rate", type=positive, default=1.0, help="speed factor on the recorded timing (default 1)")
     pl.add_argument("--clock", action="store_true",
                     help="drive /clock and go as fast as the subscribers take the messages")
-    pl.add_argument("--loop", type=int, default=1, metavar="N", help="play N times, stamps shifted each pass")
+    pl.add_argument("--loop", type=passes, default=1, metavar="N", help="play N times (N >= 1), stamps shifted each pass")
     pl.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
     pl.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
                     help="start once every topic has N subscribers (default 0: at once)")

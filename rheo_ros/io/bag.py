@@ -9,6 +9,7 @@ inside the MCAP (readable by rosbags and by mcap + mcap-ros2-support).
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -111,6 +112,8 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
         info = yaml.safe_load(meta.read_text())
     except OSError as exc:
         raise BagError(f"{meta}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise BagError(f"{meta}: not text (byte {exc.start} is not UTF-8)") from None
     except yaml.YAMLError as exc:
         raise BagError(f"{meta}: not YAML: {str(exc).splitlines()[0]}") from None
     info = info.get("rosbag2_bagfile_information") if isinstance(info, dict) else None
@@ -123,16 +126,24 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
     return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}") if text else None
 
 
-def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
+@contextmanager
+def bag_reader(path: Path) -> Iterator[AnyReader]:
+    """rosbags' reader on a bag directory; what a damaged bag raises inside (rosbags
+    raises several types: bad metadata bytes, truncated chunks) as a BagError naming it."""
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
-            conns = [c for c in reader.connections if c.topic in topics]
-            for conn, _, raw in reader.messages(connections=conns):
-                yield conn.topic, reader.deserialize(raw, conn.msgtype)
+            yield reader
     except BagError:
         raise
-    except Exception as exc:  # rosbags raises several types for damaged files
+    except Exception as exc:
         raise BagError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
+
+
+def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
+    with bag_reader(path) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        for conn, _, raw in reader.messages(connections=conns):
+            yield conn.topic, reader.deserialize(raw, conn.msgtype)
 
 
 def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagContents:

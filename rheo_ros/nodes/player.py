@@ -22,10 +22,9 @@ import rclpy
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from rosbags.highlevel import AnyReader
 from rosgraph_msgs.msg import Clock
 
-from rheo_ros.io.bag import typestore
+from rheo_ros.io.bag import bag_reader
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MessageTypes
 from rheo_ros.nodes.errors import GraphError
@@ -54,28 +53,23 @@ ACK_EVERY = 500      # messages between waits for every reader's acknowledgement
 def _bag_messages(path: Path, topics: Sequence[str] | None, loops: int
                   ) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, type, log time ns, CDR) in log-time order; later passes shifted in time."""
-    try:
-        with AnyReader([path], default_typestore=typestore()) as reader:
-            conns = [c for c in reader.connections if topics is None or c.topic in topics]
-            if topics is not None:
-                missing = sorted(set(topics) - {c.topic for c in conns})
-                if missing:
-                    raise BagError(f"{path}: {', '.join(missing)}: not in the bag")
-            span = reader.end_time - reader.start_time + 10_000_000   # a pass, plus one 10 ms gap
-            for k in range(loops):
-                shift = k * span
-                for conn, t, raw in reader.messages(connections=conns):
-                    if shift:
-                        msg = reader.deserialize(raw, conn.msgtype)
-                        if hasattr(msg, "header"):
-                            ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec + shift
-                            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
-                        raw = reader.typestore.serialize_cdr(msg, conn.msgtype)
-                    yield conn.topic, conn.msgtype, t + shift, bytes(raw)
-    except BagError:
-        raise
-    except Exception as exc:  # rosbags raises several types for damaged files
-        raise BagError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
+    with bag_reader(path) as reader:
+        conns = [c for c in reader.connections if topics is None or c.topic in topics]
+        if topics is not None:
+            missing = sorted(set(topics) - {c.topic for c in conns})
+            if missing:
+                raise BagError(f"{path}: {', '.join(missing)}: not in the bag")
+        span = reader.end_time - reader.start_time + 10_000_000   # a pass, plus one 10 ms gap
+        for k in range(loops):
+            shift = k * span
+            for conn, t, raw in reader.messages(connections=conns):
+                if shift:
+                    msg = reader.deserialize(raw, conn.msgtype)
+                    if hasattr(msg, "header"):
+                        ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec + shift
+                        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
+                    raw = reader.typestore.serialize_cdr(msg, conn.msgtype)
+                yield conn.topic, conn.msgtype, t + shift, bytes(raw)
 
 
 def _publish(publisher: Any, raw: bytes, stop: threading.Event) -> None:
@@ -110,7 +104,9 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
     if not rate > 0:
         raise ValueError(f"--rate: {rate} must be positive")
-    with AnyReader([path], default_typestore=typestore()) as reader:
+    if not (isinstance(loops, int) and loops >= 1):
+        raise ValueError(f"--loop: {loops} must be a whole number of passes, at least 1")
+    with bag_reader(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections if topics is None or c.topic in topics}
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
