@@ -156,6 +156,16 @@ def test_missing_topics_and_wrong_image_sizes_are_named(tmp_path, contents):
         read_bag(tmp_path / "small")
 
 
+def test_a_contract_topic_of_another_type_is_named(tmp_path, contents):
+    """A second connection on /tactile/pressure of another type (issue 21: decoded as an
+    image, a traceback): refused in one line naming the topic and both types."""
+    with BagWriter(tmp_path / "two_types", contents.params, compress=False) as w:
+        w.writer.add_connection(TACTILE_TOPIC, "std_msgs/msg/String", typestore=w.store)
+    with pytest.raises(BagError, match=r"two_types: /tactile/pressure: a connection of type std_msgs/msg/String; "
+                                       r"the contract's is sensor_msgs/msg/Image"):
+        read_bag(tmp_path / "two_types")
+
+
 def test_seconds_to_ns_rounds():
     assert seconds_to_ns(1.0000000004) == 1_000_000_000 and seconds_to_ns(0.0000000006) == 1
     assert seconds_to_ns(2.5) == 2_500_000_000

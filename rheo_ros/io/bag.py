@@ -142,6 +142,10 @@ def bag_reader(path: Path) -> Iterator[AnyReader]:
 def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
     with bag_reader(path) as reader:
         conns = [c for c in reader.connections if c.topic in topics]
+        for c in conns:
+            if c.topic in TOPIC_TYPES and c.msgtype != TOPIC_TYPES[c.topic]:
+                raise BagError(f"{path}: {c.topic}: a connection of type {c.msgtype}; the contract's is "
+                               f"{TOPIC_TYPES[c.topic]}")
         for conn, _, raw in reader.messages(connections=conns):
             yield conn.topic, reader.deserialize(raw, conn.msgtype)
 
