@@ -98,9 +98,15 @@ def test_bad_input_exits_2_with_one_line_naming_what_is_wrong(tmp_path, case):
 
 
 def test_a_bag_gives_the_contracts_json(tmp_path):
-    out_json = tmp_path / "report.json"
+    # A symlink planted at the output path (issue 21: the JSON went through it into its
+    # target): replaced by the report, the target untouched, no temporary file left.
+    out_json, victim = tmp_path / "report.json", tmp_path / "victim.txt"
+    victim.write_text("mine")
+    out_json.symlink_to(victim)
     out = rheo("analyze", str(BAGS / "effect_strain_stiffening"), "--json", str(out_json), "--quiet")
     assert out.returncode == 0, out.stderr
+    assert victim.read_text() == "mine" and not out_json.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "victim.txt"]
     report = json.loads(out_json.read_text())
     assert set(report) >= {"bag", "phases", "estimate", "models", "diagnosis"}
     assert "experiments" not in report   # one push: the one-push report, as before issue 25
@@ -163,3 +169,13 @@ def test_play_of_a_bag_with_random_metadata_says_which_bag_in_one_line(tmp_path)
     lines = out.stderr.strip().splitlines()
     assert out.returncode == 2 and len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
     assert lines[0].startswith("rheo: error: ") and "bag: cannot read bag" in lines[0], lines[0]
+
+
+def test_play_leaves_no_temporary_folder(tmp_path):
+    """Its DDS writer profile lives in a temporary folder (issue 21: left behind every run)."""
+    import os
+
+    out = subprocess.run([sys.executable, "-m", "rheo_ros", "play", str(BAGS / "clean_short_keep"), "--topics",
+                          "/nobody"], capture_output=True, text=True, timeout=120, env={**os.environ, "TMPDIR": str(tmp_path)})
+    assert out.returncode == 2 and "/nobody: not in the bag" in out.stderr, out.stderr
+    assert list(tmp_path.iterdir()) == []

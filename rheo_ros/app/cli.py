@@ -12,13 +12,14 @@ from typing import Any
 
 from rheo_ros.config.setup import ParamsError
 from rheo_ros.io.errors import BagError
+from rheo_ros.io.files import write_text_atomic
 from rheo_ros.nodes.errors import GraphError
 from rheo_ros.record import RecordError
 
 
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
-        Path(path).write_text(json.dumps(data, indent=2, default=float) + "\n")
+        write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
 
 
 def _bench(args: argparse.Namespace) -> int:

@@ -10,6 +10,7 @@ by rosbags' typestore), for soak runs over many experiments.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import tempfile
 import threading
@@ -112,7 +113,9 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     profile = Path(tempfile.mkdtemp(prefix="rheo-play-")) / "fastdds_writer.xml"
     profile.write_text(WRITER_PROFILE)
-    os.environ.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(profile))   # read when DDS starts, below
+    ours = "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ
+    if ours:
+        os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(profile)   # read when DDS starts, below
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("rheo_play")
     try:
@@ -159,5 +162,8 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        shutil.rmtree(profile.parent, ignore_errors=True)   # DDS read it at start-up
+        if ours:
+            os.environ.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -48,6 +48,7 @@ from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PUSH_PHASES, Phase
 from rheo_ros.identification.fit import away_from_boundaries
 from rheo_ros.identification.pipeline import contact_depth
+from rheo_ros.io.files import write_text_atomic
 
 REPORT_NAME = "report.html"
 MEASURED_COLOUR = "#333333"
@@ -83,7 +84,7 @@ def write_report(result: Analysis, directory: str | Path) -> Path:
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     path = out / REPORT_NAME
-    path.write_text(render_report(result), encoding="utf-8")
+    write_text_atomic(path, render_report(result))
     return path
 
 
