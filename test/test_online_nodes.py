@@ -322,17 +322,22 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         assert (fourth.verdict, fourth.success, fourth.estimate.final) == ("adequate", True, True), fourth.message
         assert fourth.estimate.experiment == first + 3
         # The recording of the run through rheo analyze: four experiments, and the three full
-        # pushes' final estimates are what the node published (one computation, to 1e-9).
+        # pushes' final estimates are what the node published (one computation: to 1e-4 of
+        # each parameter's std; the fit in the node's worker process and here differ in the
+        # last bits - seen 1.7e-9 relative on c2, 3e-7 of its std).
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=30) == 0, (tmp_path / "rheo.log").read_text()[-1500:]
         report = analyze(tmp_path / "recorded", discover_effects=False, workers=1).to_json()
         assert len(report["experiments"]) == 4
-        pushes = ((1, dict(zip(first_estimate.names, first_estimate.values))), (2, second["values"]),
-                  (4, dict(zip(fourth.estimate.names, fourth.estimate.values))))
+        pushes = ((1, read_estimate(first_estimate)), (2, {"params": second["values"], "std": second["std"]}),
+                  (4, read_estimate(fourth.estimate)))
         for number, online in pushes:
             offline = report["experiments"][number - 1]["models"][0]["params"]
-            for k, v in online.items():
-                assert v == pytest.approx(offline[k], rel=1e-9), (number, k)
+            for k, v in online["params"].items():
+                if math.isfinite(online["std"][k]):
+                    assert abs(v - offline[k]) <= 1e-4 * online["std"][k], (number, k, v, offline[k])
+                else:
+                    assert v == pytest.approx(offline[k], rel=1e-9, nan_ok=True), (number, k)
     finally:
         client.destroy()
         g.close()
