@@ -21,7 +21,8 @@ from rheo_ros.models.elements import three_element
 from rheo_ros.models.response import respond, stage_program
 from rheo_ros.record import Record
 
-BAGS = Path(__file__).resolve().parents[1] / "bags"
+REPO = Path(__file__).resolve().parents[1]
+BAGS = REPO / "bags"
 # The simulated clay of the reference bags (the paper's Table IV).
 TRUTH = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
 

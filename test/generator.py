@@ -216,6 +216,7 @@ class Truth:
     layout: Layout
     knots: tuple[float, float, float, float]   # contact, end of pull, release, end (s)
     pushes: tuple[dict[str, Any], ...] = ()     # per push: Push.record() (contact, set, phases)
+    fresh_material: Material | None = None      # the blocks put in place at profile.fresh (None: material)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2, default=str)
@@ -265,7 +266,7 @@ class Trajectory:
 
 
 def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarray,
-             height: float = Layout.height) -> Trajectory:
+             height: float = Layout.height, fresh_material: Material | None = None) -> Trajectory:
     """Integrate the block phase by phase and evaluate it at the (sorted) times t.
 
     State y = [eps, eps_d, s_1..s_n] (s_i the Maxwell arms' stresses). In contact the
@@ -275,7 +276,11 @@ def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarr
     Pushes after the first: the free phase runs until the stage depth reaches the
     block's sinking (event gap = stage depth - eps H crossing zero upwards, searched up
     to the push's release); the contact phases start there from the block's state.
+    The blocks put in place at ``profile.fresh`` are of ``fresh_material`` (default: the
+    first block's; the Poisson ratio must be the same, the markers see one).
     """
+    if fresh_material is not None and fresh_material.gamma != material.gamma:
+        raise ValueError("fresh_material: the Poisson ratio must be the first block's")
     E, c1, c2, k = material.E, material.c1, material.c2, effects.stiffening
     arm_E = np.array([a[0] for a in effects.maxwell])
     arm_tau = np.array([a[1] for a in effects.maxwell])
@@ -333,6 +338,8 @@ def simulate(material: Material, effects: Effects, profile: Profile, t: np.ndarr
             if swap > a:
                 fill(a, swap, solve_ivp(rhs_free, (a, swap), y, **opts), None)
             y, a = np.zeros_like(y), swap
+            if fresh_material is not None:   # the closures read these names: the new block's from here
+                E, c1, c2 = fresh_material.E, fresh_material.c1, fresh_material.c2
             eps[(t >= swap) & (t < t0)] = 0.0
             at_start, c = y, t0
         elif i > 0:   # free since a: wait for the stage to meet the top
@@ -392,7 +399,8 @@ class Data:
 
 
 def synthesize(material: Material = Material(), effects: Effects = Effects(), sensor: Sensor | str = "default_like",
-               seed: int = 0, profile: Profile = Profile(), layout: Layout = Layout()) -> Data:
+               seed: int = 0, profile: Profile = Profile(), layout: Layout = Layout(),
+               fresh_material: Material | None = None) -> Data:
     """Mechanics, then each sensor. One numpy Generator per stream (spawned from the
     seed), so the same seed gives the same bag and a new effect leaves the others' noise."""
     sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
@@ -404,7 +412,7 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     shape = (tac_t.size, layout.tactile_rows, layout.tactile_cols)
 
     # Tactile: every cell reads the uniform bottom stress (the block is homogeneous).
-    mech = simulate(material, effects, profile, tac_t, layout.height)
+    mech = simulate(material, effects, profile, tac_t, layout.height, fresh_material)
     p = np.broadcast_to(mech.sigma[:, None, None], shape).copy()
     if effects.adhesion is not None:
         p0, tau = effects.adhesion
@@ -434,7 +442,7 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     p = np.minimum(p, sensor.saturation)
 
     # Markers: u_y = -eps y (bottom on the sensor), u_x = gamma eps (x - W/2) (free sides).
-    eps = simulate(material, effects, profile, mk_t, layout.height).eps
+    eps = simulate(material, effects, profile, mk_t, layout.height, fresh_material).eps
     gx, gy = np.meshgrid(np.linspace(0, layout.width, layout.marker_cols),
                          np.linspace(0, layout.height, layout.marker_rows))
     x0, y0 = gx.ravel(), gy.ravel()   # row-major, bottom row first
@@ -506,19 +514,19 @@ def write_bag(data: Data, out: Path, params_yaml: str | None = None, compress: b
 def generate(out_dir: str | Path, *, material: Material = Material(), effects: Effects | str = "none",
              sensor: Sensor | str = "default_like", seed: int = 0, profile: Profile = Profile(),
              layout: Layout = Layout(), params_in_metadata: bool = True, params_file: bool = True,
-             compress: bool = False) -> Path:
+             compress: bool = False, fresh_material: Material | None = None) -> Path:
     """Write a bag at out_dir (must not exist) and, beside it, <name>.truth.json and
     (params_file) <name>.params.yaml for ``rheo analyze --params-file``. Returns out_dir."""
     out = Path(out_dir)
     effects = EFFECTS[effects] if isinstance(effects, str) else effects
     sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
     text = yaml.safe_dump(params_document(layout, profile), sort_keys=False)
-    data = synthesize(material, effects, sensor, seed, profile, layout)
+    data = synthesize(material, effects, sensor, seed, profile, layout, fresh_material)
     write_bag(data, out, text if params_in_metadata else None, compress)
     if params_file:
         out.with_name(out.name + ".params.yaml").write_text(text)
     truth = Truth(GENERATOR_ID, seed, material, effects, sensor, profile, layout, profile.knots,
-                  tuple(push.record() for push in data.pushes))
+                  tuple(push.record() for push in data.pushes), fresh_material)
     out.with_name(out.name + ".truth.json").write_text(truth.to_json())
     return out
 

@@ -19,7 +19,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rheo_ros_interfaces.action import Identify
-from rheo_ros_interfaces.msg import Diagnosis, Estimate, Phase
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, ObjectHint, Phase, Pool
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 PKG = Path(__file__).resolve().parent.parent / "interfaces" / "rheo_ros_interfaces"
@@ -53,7 +53,7 @@ def _fields(text: str) -> dict:
     return fields
 
 
-@pytest.mark.parametrize("msg_type", [Estimate, Phase, Diagnosis], ids=lambda t: t.__name__)
+@pytest.mark.parametrize("msg_type", [Estimate, Phase, Diagnosis, ObjectHint, Pool], ids=lambda t: t.__name__)
 def test_message_fields_are_those_of_the_msg_file(msg_type):
     expected = _fields((PKG / "msg" / f"{msg_type.__name__}.msg").read_text())
     assert list(msg_type.get_fields_and_field_types().items()) == list(expected.items())

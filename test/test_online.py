@@ -187,6 +187,23 @@ def test_bad_samples_are_counted_not_fatal():
         est.add_markers(1.0, np.zeros((3, 2)))
 
 
+def test_an_object_hint_applies_to_the_first_push_that_starts_after_it():
+    """``/rheo/object``: a hint applies to the push whose pull starts at or after its stamp
+    and after the push before it started; the last such hint wins; another word is refused."""
+    from rheo_ros.experiment import StageProfile
+
+    est = OnlineEstimator(Setup(load_params(None)))
+    first = StageProfile(depth=0.008, velocity=0.001, keep_time=15.0, release_time=40.0, start_delay=1.0)
+    second = replace(first, start_delay=80.0, before=(first,))
+    third = replace(first, start_delay=160.0, before=(first, replace(second, before=())))
+    est.add_object(50.0, "same")
+    est.add_object(79.5, "new")     # the later of two before push 2: it wins
+    est.add_object(200.0, "same")   # after push 3's start: for a push to come
+    assert [est.object_of(p) for p in (first, second, third)] == ["", "new", ""]
+    with pytest.raises(ValueError, match="object: 'old' is none of new, same or empty"):
+        est.add_object(1.0, "old")
+
+
 def test_memory_stays_bounded_over_many_experiments():
     """Twenty pushes: the buffers hold one push and a window, not the history."""
     setup, run, force = simulated(SHORT_RUN)

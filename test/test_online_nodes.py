@@ -227,7 +227,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
     update and the final whole-record estimate, trusted and right; a second push by the
     README's client meets the set the first left, trusted and right; busy and bad goals are
     refused; a cancelled goal retracts the stage; a full push at once after it is modelled
-    and trusted; the run's recording through rheo analyze gives the node's estimates."""
+    and trusted; a goal on a new object (the simulator's fresh block) is trusted, right and
+    starts a pool of its own; the run's recording (with /rheo/object) through rheo analyze
+    gives the node's estimates and pools."""
     params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True}
     (tmp_path / "params.yaml").write_text(params_yaml(params))
     g = Graph(ros_env(), tmp_path)
@@ -243,8 +245,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.start("stage", *args, "-p", "use_sim_time:=true")
         # The run recorded as a user would, for rheo analyze at the end.
         recorder = g.start("rheo", "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
-                           "--out", str(tmp_path / "recorded"), "--params-file", str(tmp_path / "params.yaml"))
-        g.spin_until(lambda: "recording 3 topic(s)" in (tmp_path / "rheo.log").read_text(), 30, "the recorder")
+                           "/rheo/object", "--out", str(tmp_path / "recorded"), "--params-file",
+                           str(tmp_path / "params.yaml"))
+        g.spin_until(lambda: "recording 4 topic(s)" in (tmp_path / "rheo.log").read_text(), 30, "the recorder")
         g.spin_until(lambda: client.server_is_ready(), 30, "the identify action server")
         feedback = []
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
@@ -268,6 +271,7 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
             assert mine == sorted(mine, key=["pull", "keep", "release"].index)
         assert_trusted_and_right(r)
         first, first_estimate = r.estimate.experiment, r.estimate
+        assert (list(r.pool.experiments), r.pool.started) == ([first], False)
         # A second push on the same specimen once the first has settled, by the README's client
         # as a process of its own: it meets the set the first left, and is trusted and right.
         run = subprocess.run([sys.executable, "-c", readme_client()], env=g.env, capture_output=True, text=True,
@@ -275,6 +279,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         assert run.returncode == 0, run.stderr[-2000:]
         second = json.loads(run.stdout.strip().splitlines()[-1])
         assert second["push"] == first + 1
+        # The same object: pooled with the first push, the pooled std below the push's own.
+        assert (second["pool"], second["new_pool"]) == ([first, first + 1], False)
+        assert all(second["pooled_std"][k] < second["std"][k] for k in ("E", "c1"))
         assert (second["trust"], second["verdict"], second["missing"]) == (True, "adequate", []), second["why"]
         for k, v in TRUTH.items():
             if math.isfinite(second["std"][k]):   # c2 may be left open by a 6 s keep
@@ -321,16 +328,32 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         fourth = result.result().result
         assert (fourth.verdict, fourth.success, fourth.estimate.final) == ("adequate", True, True), fourth.message
         assert fourth.estimate.experiment == first + 3
-        # The recording of the run through rheo analyze: four experiments, and the three full
+        # Then another object: the goal says so, the simulator puts a fresh block of the same
+        # clay in place, the push is modelled from rest (trusted and right) and starts a pool.
+        goal = client.send_goal_async(Identify.Goal(object="new"))
+        g.spin_until(goal.done, 10, "the goal on a new object accepted")
+        result = goal.result().get_result_async()
+        g.spin_until(result.done, 300, "the result on the new object")
+        fifth = result.result().result
+        assert_trusted_and_right(fifth)
+        assert fifth.estimate.experiment == first + 4
+        assert (list(fifth.pool.experiments), fifth.pool.started, fifth.pool.stated) == ([first + 4], True, True)
+        assert "a new block in place" in (tmp_path / "simulator.log").read_text()
+        # The recording of the run through rheo analyze: five experiments, and the four full
         # pushes' final estimates are what the node published (one computation: to 1e-4 of
         # each parameter's std; the fit in the node's worker process and here differ in the
-        # last bits - seen 1.7e-9 relative on c2, 3e-7 of its std).
+        # last bits - seen 1.7e-9 relative on c2, 3e-7 of its std); the hint was recorded,
+        # so push 5 is a new object offline too, in a pool of its own.
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=30) == 0, (tmp_path / "rheo.log").read_text()[-1500:]
         report = analyze(tmp_path / "recorded", discover_effects=False, workers=1).to_json()
-        assert len(report["experiments"]) == 4
+        assert len(report["experiments"]) == 5
+        assert [e["object"] for e in report["experiments"]] == ["", "", "", "", "new"]
+        assert report["experiments"][4]["from_rest"] and report["pools"][-1]["experiments"] == [5]
+        assert report["pools"][0]["experiments"][:2] == [1, 2]
+        assert report["changes"][-1]["experiment"] == 5 and report["changes"][-1]["stated"]
         pushes = ((1, read_estimate(first_estimate)), (2, {"params": second["values"], "std": second["std"]}),
-                  (4, read_estimate(fourth.estimate)))
+                  (4, read_estimate(fourth.estimate)), (5, read_estimate(fifth.estimate)))
         for number, online in pushes:
             offline = report["experiments"][number - 1]["models"][0]["params"]
             for k, v in online["params"].items():

@@ -6,7 +6,7 @@ import pytest
 from scipy.stats import chi2
 
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.pooling import LEVEL, pool_experiments
+from rheo_ros.identification.pooling import LEVEL, pool_experiments, pool_of
 
 TRUE = np.array([3.33e4, 1.69e5, 3.11e7])
 STD = np.array([16.5, 104.0, 1.0e5])                 # one push's fit (test_many_pushes' bag)
@@ -79,3 +79,27 @@ def test_a_parameter_the_data_leave_open_carries_no_weight():
     assert abs(pools[0].params["c2"] - TRUE[2]) < 4 * pools[0].std["c2"]
     assert STD[2] / np.sqrt(3) < pools[0].std["c2"] <= STD[2] / np.sqrt(2)
     assert pools[0].std["E"] < STD[0] / np.sqrt(2)
+
+
+def test_a_push_said_to_be_another_object_starts_a_pool_whatever_its_parameters():
+    """Four draws of one object; the goal says push 3 is another: pools (1, 2) and (3, 4),
+    the change stated, nothing moved (the same material, within its stds), its distance
+    still given; numbers other than 1..n carry through."""
+    rng = np.random.default_rng(3)
+    pools, changes = pool_experiments(draws(rng, 4), numbers=[5, 6, 7, 8], new_objects={7})
+    assert [p.experiments for p in pools] == [(5, 6), (7, 8)]
+    [change] = changes
+    assert change.experiment == 7 and change.stated and change.moved == {}
+    assert 0.0 < change.distance < change.limit
+    assert "said by the goal" in change.describe() and change.to_json()["stated"] is True
+    # A statement on the first push has nothing to part from.
+    pools, changes = pool_experiments(draws(rng, 2), new_objects={1})
+    assert changes == [] and [p.experiments for p in pools] == [(1, 2)]
+
+
+def test_pool_of_names_the_pool_that_holds_an_experiment():
+    rng = np.random.default_rng(3)
+    pools, _ = pool_experiments(draws(rng, 3), new_objects={3})
+    assert pool_of(pools, 2).experiments == (1, 2) and pool_of(pools, 3).experiments == (3,)
+    with pytest.raises(KeyError):
+        pool_of(pools, 4)

@@ -34,7 +34,7 @@ from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
-from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, estimate_stream
+from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
 from rheo_ros.record import RecordError
 
@@ -66,7 +66,7 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
     Raises:
         BagError: names the file, the topic and what is wrong.
     """
-    counts = dict.fromkeys(TOPIC_OF, 0)
+    counts = dict.fromkeys(TOPIC_OF, 0)   # the measurement topics must all be there (/rheo/object may not)
     rows, cols = setup.tactile.rows, setup.tactile.cols
     markers = setup.mesh.nodes.shape
     for stream, t, data in bag_samples(bag):
@@ -76,10 +76,10 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
         if stream == "markers" and data.shape != markers:
             raise BagError(f"{bag}: {MARKERS_TOPIC}: {data.shape[0]} markers at {t:.3f} s, "
                               f"parameters say {markers[0]}")
-        counts[stream] += 1
+        counts[stream] = counts.get(stream, 0) + 1
         yield stream, t, data
-    for stream, n in counts.items():
-        if not n:
+    for stream in TOPIC_OF:
+        if not counts[stream]:
             raise BagError(f"{bag}: {TOPIC_OF[stream]}: no messages")
 
 
@@ -92,7 +92,8 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
         RecordError: no push whose release began.
     """
     stream = OnlineEstimator(setup, setup.segmenter_config(), replace(setup.estimator_config(), release_interval=0.0))
-    add = {"stage": stream.add_stage, "image": stream.add_image, "markers": stream.add_markers}
+    add = {"stage": stream.add_stage, "image": stream.add_image, "markers": stream.add_markers,
+           "object": stream.add_object}
     jobs: list[Job] = []
     for name, t, data in checked_samples(bag, setup):
         add[name](t, data)
@@ -163,7 +164,11 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     forward = setup.forward_model()
     noise = sensor_noise(record)
     warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
-    if number > 1 and not record.profile().before:
+    if job.object:
+        warnings.append(f"experiment {number}: the goal said {job.object!r} object (/rheo/object): "
+                        + ("modelled from rest, a new pool" if job.object == "new" else
+                           "modelled from the pushes before, whatever the data say"))
+    elif number > 1 and not record.profile().before:
         warnings.append(f"experiment {number}: the stage met the specimen at {contact_depth(record) * 1e3:.3f} mm, "
                         "at rest: another object, or one that recovered fully; modelled from rest, not from the "
                         "pushes before")
@@ -190,17 +195,17 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
         found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say, workers=workers)
         models += found[1:]
     return Analysis(str(bag), record, setup, forward, noise, closed.estimate, tuple(models), tuple(diagnoses),
-                    tuple(effects), tuple(warnings))
+                    tuple(effects), tuple(warnings), object=job.object)
 
 
-def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None
-                 ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
+def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None,
+                 pools: list[PoolUpdate] | None = None) -> tuple[list[PhaseEvent], list[Update], list[str]]:
     """The estimator node's work on a bag, offline: same core, same samples, same order
-    of work (what a replay over DDS into the node must reproduce); ``diagnoses`` as in
-    ``estimate_stream``."""
+    of work (what a replay over DDS into the node must reproduce); ``diagnoses`` and
+    ``pools`` as in ``estimate_stream``."""
     params = params or read_params(path)
     if params is None:
         raise RecordError(f"{path}: no parameters in the bag's metadata; give --params-file")
     setup = Setup(params)
     estimator = OnlineEstimator(setup, setup.segmenter_config(), setup.estimator_config())
-    return estimate_stream(estimator, bag_samples(path), diagnoses)
+    return estimate_stream(estimator, bag_samples(path), diagnoses, pools)

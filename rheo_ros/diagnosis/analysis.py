@@ -42,6 +42,8 @@ class Analysis:
         warnings: what the analysis went without (a closed form with no solution).
         experiments: every push's analysis, in order, when the bag holds more than
             one (each push's record carries the pushes before it); empty for one push.
+        object: what the robot said of this push's object (``/rheo/object``): new, same
+            or "" (the data decide).
     """
 
     bag: str
@@ -55,6 +57,7 @@ class Analysis:
     added: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
     experiments: tuple[Analysis, ...] = ()
+    object: str = ""
 
     @property
     def base(self) -> ModelFit:
@@ -93,8 +96,10 @@ class Analysis:
         # Where the stage met the specimen (m of stage depth; the top markers' sinking):
         # the set and recovery the earlier pushes left.
         # from_rest: a later push that met a specimen at rest (met_at_rest), modelled from rest.
+        # object: what the robot said of the push's object (the goal's; "" the data decide).
         report["experiments"] = [e._push_json() | {"experiment": k, "contact_depth": contact_depth(e.record),
-                                                   "from_rest": k > 1 and not e.record.profile().before}
+                                                   "from_rest": k > 1 and not e.record.profile().before,
+                                                   "object": e.object}
                                  for k, e in enumerate(self.experiments, 1)]
         report["pools"] = [p.to_json() for p in pools]
         report["changes"] = [c.to_json() for c in changes]
@@ -145,7 +150,8 @@ class Analysis:
     def pools(self) -> tuple[list[Pool], list[Change]]:
         """The experiments judged one object, pooled, and where the object changed
         (``pool_experiments`` on each experiment's final model)."""
-        return pool_experiments([e.final.estimate for e in self.experiments])
+        return pool_experiments([e.final.estimate for e in self.experiments],
+                                new_objects={k for k, e in enumerate(self.experiments, 1) if e.object == "new"})
 
     def _push_json(self) -> dict[str, Any]:
         verdict = Verdict.of(self.diagnoses)

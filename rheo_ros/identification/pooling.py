@@ -7,11 +7,13 @@ and its std falls as pushes come in. A push whose parameters disagree with the p
 far beyond what both covariances allow (the squared Mahalanobis distance over the
 chi-square quantile at ``LEVEL``) is another object or a changed one (damage,
 temperature): it is flagged, with the parameters that moved, and starts a new pool.
+A push the robot says is on another object (the action goal's ``object: new``) starts a
+new pool whatever its parameters; the flag then says so (``stated``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,15 +58,32 @@ class Change:
     """Experiment ``experiment`` disagrees with the pool before it: squared Mahalanobis
     distance ``distance`` over ``limit`` (the chi-square quantile at ``LEVEL``); ``moved``:
     the parameters whose own difference exceeds the two-sided normal quantile at
-    ``LEVEL`` shared over the parameters, with their shift in stds."""
+    ``LEVEL`` shared over the parameters, with their shift in stds. ``stated``: the robot
+    said it is another object (the distance then only describes the difference; NaN when
+    no parameter is shared)."""
 
     experiment: int
     distance: float
     limit: float
     moved: dict[str, float]
+    stated: bool = False
 
     def to_json(self) -> dict:
-        return {"experiment": self.experiment, "distance": self.distance, "limit": self.limit, "moved": self.moved}
+        return {"experiment": self.experiment, "distance": _finite(self.distance), "limit": _finite(self.limit),
+                "moved": self.moved, "stated": self.stated}
+
+    def describe(self) -> str:
+        """One line: why experiment ``experiment`` starts a new pool."""
+        moved = ", ".join(f"{n} {z:+.3g} std" for n, z in self.moved.items())
+        if self.stated:
+            return f"experiment {self.experiment}: another object (said by the goal)" + (
+                f"; moved {moved}" if moved else "")
+        return (f"experiment {self.experiment}: another or a changed object: its parameters are "
+                f"{self.distance:.3g} from the pool's (limit {self.limit:.3g})" + (f"; moved {moved}" if moved else ""))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def _information(estimate: Estimate, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -108,38 +127,56 @@ def pooled(estimates: Sequence[Estimate], names: Sequence[str], numbers: Sequenc
 
 
 def pool_experiments(estimates: Sequence[Estimate], names: tuple[str, ...] = BASE_PARAMETERS[:3],
-                     level: float = LEVEL) -> tuple[list[Pool], list[Change]]:
-    """Pool successive experiments' estimates (in order, numbered from 1): each joins the
-    current pool unless it disagrees with it (then it is flagged and starts the next).
+                     level: float = LEVEL, numbers: Sequence[int] | None = None,
+                     new_objects: Collection[int] = ()) -> tuple[list[Pool], list[Change]]:
+    """Pool successive experiments' estimates (in order): each joins the current pool
+    unless it disagrees with it or is said to be another object (then it is flagged and
+    starts the next).
 
     Args:
         estimates: each experiment's fit (its ``params`` and ``covariance``).
         names: the parameters pooled (default E, c1, c2: the material; the Poisson ratio
             rests on the markers' view of one face).
         level: the false-alarm rate of the change test.
+        numbers: the experiments' numbers (default 1..n).
+        new_objects: numbers of experiments the robot said are on another object.
     """
+    numbers = list(numbers or range(1, len(estimates) + 1))
     pools: list[Pool] = []
     changes: list[Change] = []
     members: list[tuple[int, np.ndarray, np.ndarray]] = []
-    for number, estimate in enumerate(estimates, 1):
+    for number, estimate in zip(numbers, estimates):
         values, info = _information(estimate, names)
         if members:
             pool = _merge(members, names)
+            stated = number in new_objects
             both = (np.diag(info) > 0) & np.isfinite(pool.values)
+            distance, limit, moved = np.nan, np.nan, {}
             if both.any():
                 cov_k = np.linalg.pinv(info[np.ix_(both, both)])
                 gap = values[both] - pool.values[both]
                 joint = cov_k + pool.covariance[np.ix_(both, both)]
                 distance = float(gap @ np.linalg.solve(joint, gap))
                 limit = float(chi2.isf(level, int(both.sum())))
-                if distance > limit:
-                    z = gap / np.sqrt(np.diag(joint))
-                    cut = float(norm.isf(level / (2 * both.sum())))
-                    moved = {n: float(s) for n, s in zip(np.array(names)[both], z) if abs(s) > cut}
-                    changes.append(Change(number, distance, limit, moved))
-                    pools.append(pool)
-                    members = []
+                z = gap / np.sqrt(np.diag(joint))
+                cut = float(norm.isf(level / (2 * both.sum())))
+                moved = {str(n): float(s) for n, s in zip(np.array(names)[both], z) if abs(s) > cut}
+            if stated or distance > limit:
+                changes.append(Change(number, distance, limit, moved, stated))
+                pools.append(pool)
+                members = []
         members.append((number, values, info))
     if members:
         pools.append(_merge(members, names))
     return pools, changes
+
+
+def pool_of(pools: Sequence[Pool], experiment: int) -> Pool:
+    """The pool ``experiment`` belongs to.
+
+    Raises:
+        KeyError: no pool holds it."""
+    for pool in pools:
+        if experiment in pool.experiments:
+            return pool
+    raise KeyError(experiment)

@@ -19,12 +19,14 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rheo_ros.config.setup import Setup, params_yaml, parse_params
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
+    OBJECT_TOPIC,
+    OBJECT_TYPE,
     STAGE_TOPIC,
     TACTILE_TOPIC,
     TOPIC_TYPES,
@@ -35,6 +37,7 @@ from rheo_ros.io.messages import (
     PressureImageEncoder,
     read_joint_state,
     read_marker_array,
+    read_object_hint,
     read_pressure_image,
     stamp_ns,
 )
@@ -54,12 +57,17 @@ class BagWriter:
         path: the bag directory (must not exist).
         params: flat parameters, stored as a parameters file in the metadata.
         topics: topic -> type name; default the three measurement topics.
+        definitions: type name -> ``.msg`` text of the types rosbags' store does not know
+            (the package's own; ``rheo record`` reads them from the ament index).
     """
 
     def __init__(self, path: str | Path, params: dict[str, Any] | None = None,
-                 topics: dict[str, str] | None = None, compress: bool = True) -> None:
+                 topics: dict[str, str] | None = None, compress: bool = True,
+                 definitions: dict[str, str] | None = None) -> None:
         self.path = Path(path)
         self.store = typestore()
+        for name, text in (definitions or {}).items():
+            self.store.register(get_types_from_msg(text, name))
         self.types = MessageTypes.rosbags(self.store)
         self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         if compress:
@@ -142,10 +150,11 @@ def bag_reader(path: Path) -> Iterator[AnyReader]:
 def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
     with bag_reader(path) as reader:
         conns = [c for c in reader.connections if c.topic in topics]
+        expected = {**TOPIC_TYPES, OBJECT_TOPIC: OBJECT_TYPE}
         for c in conns:
-            if c.topic in TOPIC_TYPES and c.msgtype != TOPIC_TYPES[c.topic]:
+            if c.topic in expected and c.msgtype != expected[c.topic]:
                 raise BagError(f"{path}: {c.topic}: a connection of type {c.msgtype}; the contract's is "
-                               f"{TOPIC_TYPES[c.topic]}")
+                               f"{expected[c.topic]}")
         for conn, _, raw in reader.messages(connections=conns):
             yield conn.topic, reader.deserialize(raw, conn.msgtype)
 
@@ -198,14 +207,15 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
 def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
     """The measurement samples of a bag in recorded order, as the online estimator
     takes them: ``("stage", t, depth)``, ``("image", t, pressures)``, ``("markers", t, xy)``
-    with ``t`` the header stamp (s).
+    and, where the bag holds ``/rheo/object``, ``("object", t, hint)``, with ``t`` the
+    header stamp (s).
 
     Raises:
         BagError: unreadable bag or malformed message (names the topic and field).
     """
     path = Path(path)
     decode = {STAGE_TOPIC: ("stage", lambda m: read_joint_state(m)[0]), TACTILE_TOPIC: ("image", read_pressure_image),
-              MARKERS_TOPIC: ("markers", read_marker_array)}
+              MARKERS_TOPIC: ("markers", read_marker_array), OBJECT_TOPIC: ("object", read_object_hint)}
     for topic, msg in _messages(path, decode):
         stream, read = decode[topic]
         try:

@@ -34,11 +34,13 @@ class MessageTypes:
     lookup: Callable[[str], type]
     float64s: Callable[[np.ndarray], Any]
     bytes_: Callable[[np.ndarray], Any]
+    uint32s: Callable[[Any], Any]
 
     @classmethod
     def rosbags(cls, typestore: Any) -> MessageTypes:
         return cls(lambda name: typestore.types[name], lambda a: np.asarray(a, np.float64),
-                   lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), np.uint8))
+                   lambda a: np.frombuffer(np.ascontiguousarray(a).tobytes(), np.uint8),
+                   lambda a: np.asarray(a, np.uint32))
 
     @classmethod
     def rclpy(cls) -> MessageTypes:
@@ -49,7 +51,8 @@ class MessageTypes:
             return getattr(importlib.import_module(f"{package}.{kind}"), msg)
 
         return cls(lookup, lambda a: array.array("d", np.asarray(a, np.float64).tobytes()),
-                   lambda a: array.array("B", np.ascontiguousarray(a).tobytes()))
+                   lambda a: array.array("B", np.ascontiguousarray(a).tobytes()),
+                   lambda a: array.array("I", [int(x) for x in a]))
 
 
 def stamp_ns(msg: Any) -> int:
@@ -162,6 +165,11 @@ DIAGNOSIS_TOPIC = "/rheo/diagnosis"
 PHASE_TYPE = "rheo_ros_interfaces/msg/Phase"
 ESTIMATE_TYPE = "rheo_ros_interfaces/msg/Estimate"
 DIAGNOSIS_TYPE = "rheo_ros_interfaces/msg/Diagnosis"
+OBJECT_TOPIC = "/rheo/object"
+OBJECT_TYPE = "rheo_ros_interfaces/msg/ObjectHint"
+POOL_TOPIC = "/rheo/pool"
+POOL_TYPE = "rheo_ros_interfaces/msg/Pool"
+OBJECT_HINTS = ("new", "same", "")   # ObjectHint.object: another object, the same one, the data decide
 
 
 def _time(types: MessageTypes, t: float) -> Any:
@@ -236,4 +244,50 @@ def read_diagnosis(msg: Any) -> dict[str, Any]:
         "candidates": dict(zip(msg.candidates, np.asarray(msg.delta_bic, float).tolist())),
         "model": msg.model, "params": dict(zip(names, np.asarray(msg.values, float).tolist())),
         "std": dict(zip(names, np.asarray(msg.std, float).tolist())), "evidence": msg.evidence,
+    }
+
+
+def object_hint_message(types: MessageTypes, t_ns: int, kind: str) -> Any:
+    """``/rheo/object``: what the robot says about the object the next push meets."""
+    msg = types.lookup(OBJECT_TYPE)(header=_header(types, ""), object=kind)
+    _stamp(msg, t_ns)
+    return msg
+
+
+def read_object_hint(msg: Any) -> str:
+    """The hint of an ObjectHint message (``new``, ``same`` or ``""``).
+
+    Raises:
+        MessageError: another word."""
+    if msg.object not in OBJECT_HINTS:
+        raise MessageError(f"object: {msg.object!r} is none of new, same or empty (the data decide)")
+    return msg.object
+
+
+def pool_message(types: MessageTypes, update: Any) -> Any:
+    """``/rheo/pool`` from an ``online.estimator.PoolUpdate``."""
+    pool, change = update.pool, update.change
+    msg = types.lookup(POOL_TYPE)(
+        header=_header(types, ""), experiment=update.experiment, experiments=types.uint32s(pool.experiments),
+        names=list(pool.names), values=types.float64s(pool.values),
+        covariance=types.float64s(np.asarray(pool.covariance).ravel()), chi2=float(pool.chi2), dof=int(pool.dof),
+        started=change is not None, stated=bool(change and change.stated),
+        moved=list(change.moved) if change else [],
+        shift=types.float64s(list(change.moved.values()) if change else []), message=update.message,
+    )
+    _stamp(msg, int(round(update.stamp * 1e9)))
+    return msg
+
+
+def read_pool(msg: Any) -> dict[str, Any]:
+    """A Pool message as plain values: params, std, the members, whether it started a pool."""
+    names = list(msg.names)
+    cov = np.asarray(msg.covariance, float).reshape(len(names), len(names))
+    return {
+        "stamp": stamp_ns(msg) * 1e-9, "experiment": int(msg.experiment),
+        "experiments": [int(k) for k in msg.experiments],
+        "params": dict(zip(names, np.asarray(msg.values, float).tolist())),
+        "std": dict(zip(names, np.sqrt(np.diag(cov)).tolist())), "chi2": float(msg.chi2), "dof": int(msg.dof),
+        "started": bool(msg.started), "stated": bool(msg.stated),
+        "moved": dict(zip(msg.moved, np.asarray(msg.shift, float).tolist())), "message": msg.message,
     }

@@ -32,7 +32,7 @@ from geometry_msgs.msg import PoseArray, WrenchStamped
 from rclpy._rclpy_pybind11 import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rheo_ros_interfaces.msg import Diagnosis, Estimate
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, ObjectHint, Pool
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.config.setup import Setup
@@ -41,6 +41,8 @@ from rheo_ros.io.messages import (
     DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
     MARKERS_TOPIC,
+    OBJECT_TOPIC,
+    POOL_TOPIC,
     STAGE_TOPIC,
     TACTILE_TOPIC,
     MarkerArrayEncoder,
@@ -48,14 +50,16 @@ from rheo_ros.io.messages import (
     MessageTypes,
     diagnosis_message,
     estimate_message,
+    pool_message,
     read_joint_state,
     read_marker_array,
+    read_object_hint,
     read_pressure_image,
     stamp_ns,
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
-from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, Update, supersedes
+from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
 from rheo_ros.record import RecordError
 
@@ -71,6 +75,7 @@ LATCHED_QOS = QoSProfile(depth=16, reliability=ReliabilityPolicy.RELIABLE, durab
 FIT_BACKLOG = 8          # whole-record jobs waiting (about three pushes' worth)
 PREDICTION_RATE = 10.0   # Hz of stamps, per predicted topic
 TOPICS = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
+INPUTS = {**TOPICS, "object": OBJECT_TOPIC}   # what the node takes in: the measurements and the robot's hints
 
 
 class EstimatorNode(Node):
@@ -86,6 +91,9 @@ class EstimatorNode(Node):
         self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
         self.estimates = self.create_publisher(Estimate, ESTIMATE_TOPIC, LATCHED_QOS)
         self.verdicts = self.create_publisher(Diagnosis, DIAGNOSIS_TOPIC, LATCHED_QOS)
+        self.pools = self.create_publisher(Pool, POOL_TOPIC, LATCHED_QOS)
+        # What the robot says of the next push's object: latched, the stage's goals.
+        self.create_subscription(ObjectHint, OBJECT_TOPIC, self.on_object, LATCHED_QOS)
         self.verdict = ""    # the last experiment's model verdict, while it says the base model misfits
         self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.measured_force = self.create_publisher(WrenchStamped, "/rheo/measured/force", 10)
@@ -94,7 +102,7 @@ class EstimatorNode(Node):
         self.encode_markers = MarkerArrayEncoder(self.types)
         self.silence = Silence(TOPICS, self.stale_after)
         self.create_timer(self.silence.tick_period, self.silence.tick)
-        self.bad: dict[str, int] = dict.fromkeys(TOPICS, 0)
+        self.bad: dict[str, int] = dict.fromkeys(INPUTS, 0)
         self.last_bad = ""
         self.last_error = ""
         self.latest: Update | None = None
@@ -167,6 +175,14 @@ class EstimatorNode(Node):
                                           "the data stopped before the specimen settled")
         for job in self.core.ready_jobs(silent):
             self.closed_jobs.put((job, arrival))
+
+    def on_object(self, msg: ObjectHint) -> None:
+        try:
+            self.core.add_object(stamp_ns(msg) * 1e-9, read_object_hint(msg))
+        except MessageError as exc:
+            self.bad["object"] += 1
+            self.last_bad = f"{OBJECT_TOPIC}: {exc}"
+            self.get_logger().warning(f"{self.last_bad}; message ignored")
 
     def on_stage(self, msg: JointState) -> None:
         self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
@@ -269,16 +285,22 @@ class EstimatorNode(Node):
             self.last_error = (f"experiment {e.experiment} {e.name}: identified without "
                                f"{', '.join(TOPICS[s] for s in job.stale)} (stale)") if job.stale else ""
             fit = self.core.last_fit(e.experiment)
-            if job.final and self.core.config.diagnose and fit is not None:
+            if not job.final or fit is None:
+                continue
+            final = fit   # the push's final model, pooled with the earlier pushes'
+            if self.core.config.diagnose:
                 if self.fit_jobs.holds(lambda item: item is not None and item[0].final):
                     # Seconds of work on a push the robot has moved on from, while a newer
                     # push's final estimate waits: that one's diagnosis is the one to have.
                     self.skipped_diagnoses += 1
-                    continue
-                try:
-                    self._hand_out(self._in_worker("fit", "diagnose", job, fit), arrival)
-                except Exception as exc:
-                    self._failed(job, exc)
+                else:
+                    try:
+                        diagnosis = self._in_worker("fit", "diagnose", job, fit)
+                        self._hand_out(diagnosis, arrival)
+                        final = diagnosis.final or fit
+                    except Exception as exc:
+                        self._failed(job, exc)
+            self._hand_out(self.core.pool(e.experiment, float(job.record.force_t[-1]), final), arrival)
 
     def publish_results(self) -> None:
         while not self.outbox.empty():
@@ -296,6 +318,13 @@ class EstimatorNode(Node):
                 self.latency["closed_form compute"].append(worker[1])
             if isinstance(update, OnlineDiagnosis):
                 self.publish_verdict(update)
+                continue
+            if isinstance(update, PoolUpdate):
+                self.pools.publish(pool_message(self.types, update))
+                self.get_logger().info(f"experiment {update.experiment}: {update.message}: "
+                                       + ", ".join(f"{n} {v:.4g} +- {s:.2g}" for n, v, s in zip(
+                                           update.pool.names, update.pool.values, np.sqrt(np.diag(
+                                               update.pool.covariance)))))
                 continue
             self.estimates.publish(estimate_message(self.types, update))
             kind = "whole_record" if update.method == "whole_record" else "closed_form"
@@ -404,7 +433,7 @@ class EstimatorNode(Node):
                    **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",
                                                  "marker noise m": f"{sensor.marker_noise:.4g}"}),
                    "interim fits skipped": self.fit_jobs.replaced,
-                   **{f"bad {TOPICS[s]}": n for s, n in self.bad.items()},
+                   **{f"bad {INPUTS[s]}": n for s, n in self.bad.items()},
                    **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},
                    **{f"latency {k} {q} ms": f"{1e3 * np.percentile(v, int(q[1:])):.2f}"
                       for k, v in self.latency.items() if v for q in ("p50", "p99")},

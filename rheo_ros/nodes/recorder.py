@@ -7,7 +7,9 @@ message as received. Ctrl-C or SIGTERM stops it cleanly: the writer is closed an
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Sequence
@@ -18,7 +20,7 @@ import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from rheo_ros.io.bag import BagWriter
+from rheo_ros.io.bag import BagWriter, typestore
 from rheo_ros.io.messages import MessageTypes
 from rheo_ros.nodes.errors import GraphError
 
@@ -62,6 +64,30 @@ def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 
     return None, "no publisher serves the rheo_ros parameters"
 
 
+def message_definitions(types: Sequence[str]) -> dict[str, str]:
+    """The ``.msg`` text of each of ``types`` that rosbags' store does not know (the
+    package's own: /rheo/estimate, /rheo/object, ...), from the interface packages'
+    ``share/<package>/msg`` folders on the ament prefix path (a colcon install, or this
+    venv, where tools/build_interfaces.sh installs them).
+
+    Raises:
+        GraphError: a type with no definition on the prefix path (it could not be decoded)."""
+    known = typestore().types
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
+    found: dict[str, str] = {}
+    for name in dict.fromkeys(types):
+        if name in known:
+            continue
+        package, kind, msg = name.split("/")
+        paths = [Path(p) / "share" / package / kind / f"{msg}.msg" for p in prefixes]
+        path = next((p for p in paths if p.is_file()), None)
+        if path is None:
+            raise GraphError(f"{name}: no message definition under share/{package}/{kind} on the ament prefix path "
+                             f"({os.pathsep.join(prefixes)}): cannot record it")
+        found[name] = path.read_text()
+    return found
+
+
 def record(
     topics: Sequence[str], out: str | Path, params: dict[str, Any] | None, duration: float | None = None,
     discovery_timeout: float = 10.0,
@@ -97,7 +123,8 @@ def record(
         counts = dict.fromkeys(topics, 0)
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         lookup = MessageTypes.rclpy().lookup
-        with BagWriter(out, params, topics={t: types[t] for t in topics}) as bag:
+        chosen = {t: types[t] for t in topics}
+        with BagWriter(out, params, topics=chosen, definitions=message_definitions(list(chosen.values()))) as bag:
             def writer(topic: str):
                 def on_message(data: bytes) -> None:
                     bag.write_raw(topic, node.get_clock().now().nanoseconds, data)

@@ -6,7 +6,8 @@ publishes ``/tactile/pressure`` and ``/markers/mesh`` at their rates. With
 once the stage's sample for the current clock time is in, the clock moves
 ``simulator.clock_step`` stage periods on (the stage publishes every sample due by
 then), so the run goes as fast as
-the two nodes can exchange messages.
+the two nodes can exchange messages. An ``/rheo/object`` hint ``new`` (an identify goal
+on another object) puts a new block of the same material in place, at rest.
 """
 
 from __future__ import annotations
@@ -16,12 +17,14 @@ import time
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rheo_ros_interfaces.msg import ObjectHint
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.config.setup import Setup
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
+    OBJECT_TOPIC,
     STAGE_TOPIC,
     TACTILE_TOPIC,
     MarkerArrayEncoder,
@@ -29,9 +32,11 @@ from rheo_ros.io.messages import (
     MessageTypes,
     PressureImageEncoder,
     read_joint_state,
+    read_object_hint,
     stamp_ns,
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
+from rheo_ros.nodes.estimator import LATCHED_QOS
 from rheo_ros.rig.simulator import Simulator
 
 
@@ -47,6 +52,8 @@ class SimulatorNode(Node):
         self.tactile = self.create_publisher(Image, TACTILE_TOPIC, qos)
         self.markers = self.create_publisher(PoseArray, MARKERS_TOPIC, qos)
         self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, qos)
+        self.create_subscription(ObjectHint, OBJECT_TOPIC, self.on_object, LATCHED_QOS)
+        self.swapped_at = -1   # stamp (ns) of the last hint acted on: a latched one arrives again
         self.t0: int | None = None
         self.drive_clock = params["simulator.clock"]
         self.clock_step = params["simulator.clock_step"]
@@ -60,6 +67,17 @@ class SimulatorNode(Node):
         self.get_logger().info(f"simulator ready: {self.setup.params['geometry']} FE mesh {fine.rows} x {fine.cols} "
                                f"nodes ({self.setup.mesh.rows} x {self.setup.mesh.cols} markers), "
                                f"hidden effects: {effects}")
+
+    def on_object(self, msg: ObjectHint) -> None:
+        try:
+            kind = read_object_hint(msg)
+        except MessageError as exc:
+            self.get_logger().warning(f"{OBJECT_TOPIC}: {exc}; hint ignored")
+            return
+        if kind == "new" and stamp_ns(msg) > self.swapped_at:
+            self.swapped_at = stamp_ns(msg)
+            self.sim.new_block()
+            self.get_logger().info("a new block in place, at rest (object: new)")
 
     def on_stage(self, msg: JointState) -> None:
         try:

@@ -3,8 +3,12 @@
 With ``stage.autostart`` it runs the profile once at start; either way it serves the
 ``/rheo/identify`` action (``rheo_ros_interfaces/action/Identify``): a planner asks for
 one push-keep-release of the object in front of it, gets feedback as each phase's
-estimate arrives on ``/rheo/estimate`` and the final estimate as its result. A cancel
-(or a shutdown mid-run) makes the stage retract at once (``MotionSource.abort``).
+estimate arrives on ``/rheo/estimate`` and the final estimate as its result, with the
+estimator's diagnosis and its pool (``/rheo/pool``: this push pooled with the earlier
+ones on the same object). The goal's ``object`` (new, same, or "" for the data to decide)
+goes out on ``/rheo/object`` as the run starts, for the estimator, the simulator and a
+recording. A cancel (or a shutdown mid-run) makes the stage retract at once
+(``MotionSource.abort``).
 """
 
 from __future__ import annotations
@@ -14,11 +18,12 @@ import time
 
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.duration import Duration
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rheo_ros_interfaces.action import Identify
-from rheo_ros_interfaces.msg import Diagnosis, Estimate
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, ObjectHint, Pool
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
@@ -26,9 +31,13 @@ from rheo_ros.config.setup import ParamsError, Setup, check_params
 from rheo_ros.io.messages import (
     DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
+    OBJECT_HINTS,
+    OBJECT_TOPIC,
+    POOL_TOPIC,
     STAGE_TOPIC,
     JointStateEncoder,
     MessageTypes,
+    object_hint_message,
     stamp_ns,
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, declare_all, run_node
@@ -75,6 +84,11 @@ class StageNode(Node):
         self.diagnose = params["estimator.diagnose"]
         self.diagnoses: list[Diagnosis] = []
         self.create_subscription(Diagnosis, DIAGNOSIS_TOPIC, self.diagnoses.append, LATCHED_QOS, callback_group=group)
+        self.fits = params["estimator.fit"]   # no whole-record fit: no covariance to pool
+        self.pools: list[Pool] = []
+        self.create_subscription(Pool, POOL_TOPIC, self.pools.append, LATCHED_QOS, callback_group=group)
+        self.hints = self.create_publisher(ObjectHint, OBJECT_TOPIC, LATCHED_QOS)
+        self.types = MessageTypes.rclpy()
         self.action = ActionServer(self, Identify, IDENTIFY_ACTION, execute_callback=self.identify,
                                    goal_callback=self.accept_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
                                    callback_group=group)
@@ -124,6 +138,8 @@ class StageNode(Node):
             self.context.try_shutdown()
 
     action_active = False          # a goal holds the stage, from its acceptance to its result
+    HINT_TIMEOUT = 2.0   # s of wall time for the subscribers to acknowledge a goal's /rheo/object
+    HINT_SETTLE = 0.2    # s of wall time for their executors to act on it before the stage moves
     FIT_TIMEOUT = 60.0   # s of wall time without an estimate, once the profile is done
     # s of wall time for the push's diagnosis after its final estimate: the discovery loop
     # fits several candidate models (tens of seconds here, minutes on a loaded machine).
@@ -156,6 +172,8 @@ class StageNode(Node):
                    if not getattr(goal, k) <= 0}
         result = Identify.Result()
         try:
+            if goal.object not in OBJECT_HINTS:
+                raise ParamsError(f"object: {goal.object!r} is none of new, same or empty (the data decide)")
             profile = Setup(check_params({**self.setup.params, **changes}, "goal")).profile.pushes[0]   # one push
         except ParamsError as exc:
             handle.abort()
@@ -167,8 +185,17 @@ class StageNode(Node):
         # closes only as this push starts, a cancelled push's) are not its result.
         earlier = max((m.experiment for m in self.estimates), default=0)
         run_experiment: int | None = None
+        # Stamped before the stage moves: it applies to the push this run makes. The stage
+        # moves once the subscribers have it in hand (acknowledged, then a moment for their
+        # executors): a simulator that took it a few samples late put its new block in place
+        # 75 um under the stage, and the push's c2 came out 24 % high.
+        self.hints.publish(object_hint_message(self.types, self.now_ns, goal.object))
+        if not self.hints.wait_for_all_acked(Duration(seconds=self.HINT_TIMEOUT)):
+            self.get_logger().warning(f"{OBJECT_TOPIC}: not acknowledged within {self.HINT_TIMEOUT:g} s")
+        time.sleep(self.HINT_SETTLE)
         self.start(profile)
-        asked = ", ".join(f"{k.removeprefix('stage.')} {v:g}" for k, v in changes.items())
+        asked = ", ".join([f"{k.removeprefix('stage.')} {v:g}" for k, v in changes.items()]
+                          + [f"object {goal.object}"] * bool(goal.object))
         self.get_logger().info(f"{IDENTIFY_ACTION}: run started ({asked})")
         # The run takes its own length on the stage clock (sim time in fast mode); the
         # fits after it take wall time: a minute of it once the profile is done, counted
@@ -205,15 +232,12 @@ class StageNode(Node):
 
     def _judged(self, handle, estimate: Estimate) -> Identify.Result:
         """The result: the final estimate with the estimator's diagnosis of the same push
-        (waited for where the estimator diagnoses), ``success`` whether to trust it."""
+        (waited for where the estimator diagnoses) and its pool, ``success`` whether to
+        trust the estimate."""
         result = Identify.Result(estimate=estimate, undetermined=list(estimate.undetermined))
         diagnosis = None
         if self.diagnose:
-            deadline = time.monotonic() + self.DIAGNOSIS_TIMEOUT
-            while diagnosis is None and time.monotonic() < deadline and not handle.is_cancel_requested:
-                diagnosis = next((d for d in reversed(self.diagnoses) if d.experiment == estimate.experiment
-                                  and stamp_ns(d) >= stamp_ns(estimate)), None)
-                time.sleep(0.02)
+            diagnosis = self._wait_for(self.diagnoses, estimate, handle, self.DIAGNOSIS_TIMEOUT)
             if diagnosis is None:
                 handle.abort()
                 result.verdict = "not_diagnosed"
@@ -229,9 +253,29 @@ class StageNode(Node):
         result.success, result.message = trusted(
             result.verdict, result.undetermined, result.missing_effects,
             [] if diagnosis is None else list(diagnosis.undecided))
+        # The pool follows the diagnosis at once (the same lane); the estimate stands without it.
+        pool = self._wait_for(self.pools, estimate, handle, self.FIT_TIMEOUT) if self.fits else None
+        if pool is not None:
+            result.pool = pool
+        elif self.fits:
+            self.get_logger().warning(f"{IDENTIFY_ACTION}: no pool on {POOL_TOPIC} in time; the result has none")
         handle.succeed()   # the action ran; success says whether its estimate can be used
-        self.get_logger().info(f"{IDENTIFY_ACTION}: {result.verdict}: {result.message}")
+        self.get_logger().info(f"{IDENTIFY_ACTION}: {result.verdict}: {result.message}"
+                               + (f"; {pool.message}" if pool is not None else ""))
         return result
+
+    @staticmethod
+    def _wait_for(messages: list, estimate: Estimate, handle, timeout: float):
+        """The first message of ``messages`` (a subscription's list) about the estimate's
+        push and not older than it; None after ``timeout`` s or a cancel."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not handle.is_cancel_requested:
+            found = next((m for m in reversed(messages) if m.experiment == estimate.experiment
+                          and stamp_ns(m) >= stamp_ns(estimate)), None)
+            if found is not None:
+                return found
+            time.sleep(0.02)
+        return None
 
     def _cancel(self, handle, result: Identify.Result) -> Identify.Result:
         if self.t0 is None:

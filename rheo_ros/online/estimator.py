@@ -53,6 +53,7 @@ from rheo_ros.identification.pipeline import (
     relaxation_unseen,
     undetermined,
 )
+from rheo_ros.identification.pooling import Change, Pool, pool_experiments, pool_of
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
@@ -115,6 +116,7 @@ class OnlineDiagnosis:
     values: np.ndarray
     std: np.ndarray
     evidence: str
+    final: Estimate | None = None   # the last model's fit (pooled with the other pushes')
 
     @property
     def verdict(self) -> str:
@@ -144,8 +146,20 @@ class OnlineDiagnosis:
             delta_bic=np.array([c.delta_bic for c in verdict.candidates]),
             names=tuple(last.params), values=np.array(list(last.params.values())),
             std=np.array([std.get(n, np.inf) for n in last.params]),
-            evidence=verdict.evidence,
+            evidence=verdict.evidence, final=last,
         )
+
+
+@dataclass(frozen=True)
+class PoolUpdate:
+    """The pool a push joined or started (``/rheo/pool``): its joint estimate, and the
+    change when the push starts it (None: it joined)."""
+
+    experiment: int
+    stamp: float
+    pool: Pool
+    change: Change | None
+    message: str
 
 
 def trusted(verdict: str, undetermined: Sequence[str], missing_effects: Sequence[str] = (),
@@ -175,6 +189,8 @@ class Job:
         stale: streams that had stopped when the job was made (it went without them).
         interim: a release still going on (its update is not final).
         cut_short: why a release was closed before the markers settled ("" when they did).
+        object: what the robot said of the push's object (``/rheo/object``): new, same, or
+            "" (the data decide).
     """
 
     event: PhaseEvent
@@ -182,6 +198,7 @@ class Job:
     stale: tuple[str, ...] = ()
     interim: bool = False
     cut_short: str = ""
+    object: str = ""
 
     @property
     def final(self) -> bool:
@@ -378,6 +395,9 @@ class OnlineEstimator:
         self._final: tuple[int, Estimate] | None = None   # the last push's final fit
         self.dropped_pushes = 0                    # pushes given up for lasting over max_push_time
         self.at_rest_since = -np.inf               # pull start of the last later push met at rest (met_at_rest)
+        self.hints: list[tuple[float, str]] = []    # (stamp, new | same | ""): /rheo/object, in stamp order
+        self._objects: dict[int, str] = {}          # each experiment's hint, as its jobs carried it
+        self._pool_finals: dict[int, Estimate] = {}   # each push's final model, for the pools
         # Releases whose interim jobs are not all out: [experiment, profile, next due, release
         # end (inf while open)]. An interim is due every release_interval s of data before the
         # release's end, however the streams interleave.
@@ -416,6 +436,24 @@ class OnlineEstimator:
             return []
         return self._took(self.segmenter.add_markers(t, positions))
 
+    def add_object(self, t: float, kind: str) -> None:
+        """What the robot says of the object the next push meets (``/rheo/object``): it
+        applies to the first push whose pull starts at or after ``t``.
+
+        Raises:
+            ValueError: ``kind`` is none of new, same, "" (the data decide)."""
+        if kind not in ("new", "same", ""):
+            raise ValueError(f"object: {kind!r} is none of new, same or empty (the data decide)")
+        bisect.insort(self.hints, (float(t), kind))
+        del self.hints[:-100]   # a hint older than a hundred goals has long been applied
+
+    def object_of(self, profile: StageProfile) -> str:
+        """The hint for the push ``profile`` describes: the last one stamped after the push
+        before it started and no later than its own pull's start ("" without one)."""
+        after = profile.before[-1].t_pull_start if profile.before else -np.inf
+        said = [k for t, k in self.hints if after < t <= profile.t_pull_start]
+        return said[-1] if said else ""
+
     def _store(self, stream: str, t: float, value: np.ndarray) -> bool:
         if not (np.isfinite(t) and np.all(np.isfinite(value))) or not self.streams[stream].add(t, value):
             self.rejected[stream] += 1
@@ -443,6 +481,7 @@ class OnlineEstimator:
                 self.segmenter = PhaseSegmenter(self.segmenter.config)
                 self.push_start, self.pending, self._interims = None, [], []
                 self._final, self.at_rest_since = None, -np.inf   # numbering starts again at 1
+                self._objects, self._pool_finals = {}, {}
                 self.dropped_pushes += 1
                 keep_from = latest - margin
         for s in self.streams.values():
@@ -516,16 +555,19 @@ class OnlineEstimator:
             if self.pending and e is self.pending[0]:
                 self.pending.pop(0)
                 cut = self._cut_short.pop(e.experiment, "") if e.name == "release" else ""
-                jobs.append(Job(e, self._record(e, self.profiles.pop((e.experiment, e.name))),
-                                tuple(sorted(behind)), cut_short=cut))
+                profile = self.profiles.pop((e.experiment, e.name))
+                kind = self._objects[e.experiment] = self.object_of(profile)
+                jobs.append(Job(e, self._record(e, profile, kind), tuple(sorted(behind)), cut_short=cut, object=kind))
                 if e.name == "release":
                     self.push_start = None
             else:
                 interim[2] += self._interval
-                jobs.append(Job(e, self._record(e, interim[1]), tuple(sorted(behind)), interim=True))
+                kind = self.object_of(interim[1])
+                jobs.append(Job(e, self._record(e, interim[1], kind), tuple(sorted(behind)), interim=True,
+                                object=kind))
         return jobs
 
-    def _record(self, e: PhaseEvent, profile: StageProfile) -> Record | None:
+    def _record(self, e: PhaseEvent, profile: StageProfile, kind: str = "") -> Record | None:
         if e.name == "pull":
             profile = replace(profile, keep_time=1e9, release_time=0.0)
         elif e.name == "release":
@@ -535,6 +577,8 @@ class OnlineEstimator:
         force = parts["force"][1].reshape(-1, self.mesh.cols)
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
         self.sensor = self.setup.sensor(self.readout, force, markers)
+        if kind == "new":   # the robot says so: another object, at rest
+            self.at_rest_since = max(self.at_rest_since, profile.t_pull_start)
         # Pushes before the last one found at rest are another object's (or fully undone).
         profile = replace(profile, before=tuple(h for h in profile.before if h.t_pull_start >= self.at_rest_since))
         try:
@@ -543,7 +587,7 @@ class OnlineEstimator:
                             source=f"experiment {e.experiment} {e.name}", stage_profile=profile, sensor=self.sensor)
         except RecordError:
             return None
-        if e.name != "pull" and met_at_rest(record):
+        if not kind and e.name != "pull" and met_at_rest(record):
             # The data decide: the stage met a specimen at rest, so the pushes before are
             # not its history (another object, or one that recovered fully). From the keep
             # on (the hold shows where the stage met it), this push and the next start there.
@@ -593,6 +637,21 @@ class OnlineEstimator:
             self._final = (e.experiment, fit)   # as rheo analyze has it: the push's final fit
         return update
 
+    def pool(self, experiment: int, stamp: float, final: Estimate) -> PoolUpdate:
+        """Pool a push's final model (the diagnosis' last model, or the base fit where the
+        push is not diagnosed) with the earlier pushes' (``pool_experiments``, as ``rheo
+        analyze`` pools a bag's): the pool it joined or started."""
+        self._pool_finals[experiment] = final
+        numbers = sorted(self._pool_finals)
+        pools, changes = pool_experiments([self._pool_finals[k] for k in numbers], numbers=numbers,
+                                          new_objects={k for k in numbers if self._objects.get(k) == "new"})
+        pool = pool_of(pools, experiment)
+        change = next((c for c in changes if c.experiment == experiment), None)
+        members = ", ".join(map(str, pool.experiments))
+        message = (change.describe() + "; a new pool" if change else
+                   f"experiments {members} pooled (chi-square {pool.chi2:.3g} on {pool.dof} dof)")
+        return PoolUpdate(experiment, stamp, pool, change, message)
+
     def last_fit(self, experiment: int) -> Estimate | None:
         """The latest whole-record fit of ``experiment`` (None: none yet, or another push since)."""
         return self._fits.get(experiment)
@@ -612,7 +671,7 @@ class OnlineEstimator:
 
 
 def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, float, np.ndarray]],
-                    diagnoses: list[OnlineDiagnosis] | None = None,
+                    diagnoses: list[OnlineDiagnosis] | None = None, pools: list[PoolUpdate] | None = None,
                     ) -> tuple[list[PhaseEvent], list[Update], list[str]]:
     """Feed ``(stream, t, data)`` samples in order, run each job as it becomes ready,
     and at the end of the data close a release still open (``finish``).
@@ -620,10 +679,12 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
     The offline path of the node: same core, same order of work. Returns the phases,
     the updates and the errors (one line each); with a ``diagnoses`` list (and
     ``estimator.diagnose``), each release's verdict is appended to it, as the node
-    publishes it.
+    publishes it; with a ``pools`` list, each push's pool (from its diagnosis' last
+    model where ``diagnoses`` is given, else from its final fit), as the node publishes
+    it on ``/rheo/pool``.
     """
     add = {"stage": estimator.add_stage, "force": estimator.add_force, "image": estimator.add_image,
-           "markers": estimator.add_markers}
+           "markers": estimator.add_markers, "object": lambda t, kind: estimator.add_object(t, kind) or []}
     phases: list[PhaseEvent] = []
     updates: list[Update] = []
     errors: list[str] = []
@@ -633,9 +694,14 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
             try:
                 updates.extend(estimator.run_job(job))
                 fit = estimator.last_fit(job.event.experiment)
-                if (diagnoses is not None and job.final and estimator.config.diagnose
-                        and fit is not None):
+                if not job.final or fit is None:
+                    continue
+                final = fit
+                if diagnoses is not None and estimator.config.diagnose:
                     diagnoses.append(estimator.identify.diagnose(job, fit))
+                    final = diagnoses[-1].final or fit
+                if pools is not None:
+                    pools.append(estimator.pool(job.event.experiment, float(job.record.force_t[-1]), final))
             except (RecordError, ValueError, np.linalg.LinAlgError) as exc:
                 errors.append(str(exc))
 

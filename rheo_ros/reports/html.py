@@ -157,11 +157,7 @@ def _experiments_section(result: Analysis) -> str:
         f"<li>pool {i}: experiments {', '.join(map(str, p.experiments))}: "
         + ", ".join(f"{n} {p.params[n]:.4g} +- {p.std[n]:.2g}" for n in p.names)
         + f" (chi-square {p.chi2:.3g} on {p.dof} dof)</li>" for i, p in enumerate(pools, 1))
-    flagged = "".join(
-        f"<li>experiment {c.experiment}: another object or a changed one (distance {c.distance:.3g} over "
-        f"{c.limit:.3g}); moved: "
-        + (", ".join(f"{n} {z:+.1f} std" for n, z in c.moved.items()) or "no one parameter alone")
-        + "</li>" for c in changes)
+    flagged = "".join(f"<li>{html.escape(c.describe())}</li>" for c in changes)
     return (f'<section id="experiments"><h2>Experiments</h2><p>{len(result.experiments)} pushes on the '
             "specimen; each is modelled from where the earlier ones left it. The sections below are "
             f'experiment 1\'s.</p><table class="parameters">{head}{"".join(rows)}</table>'

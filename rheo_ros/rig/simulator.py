@@ -88,6 +88,14 @@ class Simulator:
         self.last = (t, depth)
         return frames
 
+    def new_block(self) -> None:
+        """Another block of the same material put in place, at rest, the stage touching
+        it at depth 0 (an identify goal's ``object: new``); the old one's set and recovery
+        go with it. The stage should be at depth 0 (off the old block) when this is called."""
+        if self.last is not None:
+            self.fe.reset(self.t)
+        self.release, self._contact_force = None, np.zeros(self.mesh.cols)
+
     def _advance(self, t: float, depth: float) -> None:
         held = self.fe.contact == "held"
         self.fe.advance(t, depth)
