@@ -196,3 +196,24 @@ def test_silence_is_the_topics_not_a_held_up_executor(monkeypatch):
     assert silence.all_silent
     silence.heard("force")
     assert silence.silent() == ["stage"]
+
+
+def test_a_bad_message_warning_holds_until_good_data_have_flowed_for_clear_after(monkeypatch):
+    """``BadMessages`` (the nodes' /diagnostics): the WARN reason names the count and the
+    last bad message; good data for less than ``clear_after`` s keep it, for longer clear
+    it; a new bad message brings it back with the count carried on."""
+    from rheo_ros.nodes import common
+
+    clock = [100.0]
+    monkeypatch.setattr(common.time, "monotonic", lambda: clock[0])
+    bad = common.BadMessages(("stage", "markers"), clear_after=2.0)
+    assert bad.warning() == ""
+    bad.bad("markers", "/markers/mesh: non-finite values")
+    clock[0] += 1.9
+    bad.good()
+    assert bad.warning() == "1 bad message(s), last: /markers/mesh: non-finite values"
+    clock[0] += 0.2
+    bad.good()
+    assert bad.warning() == "" and bad.counts == {"stage": 0, "markers": 1}
+    bad.bad("stage", "/stage/joint_states: no joint named stage")
+    assert bad.warning() == "2 bad message(s), last: /stage/joint_states: no joint named stage"

@@ -25,7 +25,7 @@ from sensor_msgs.msg import Image
 from rheo_ros.app.analyze import analyze, estimate_bag
 from rheo_ros.app.simulate import simulate_to_bag
 from rheo_ros.config.setup import Setup, load_params, params_yaml
-from rheo_ros.io.messages import read_diagnosis, read_estimate
+from rheo_ros.io.messages import read_diagnosis, read_estimate, read_pool
 
 BIN = Path(sys.executable).parent
 SHORT_RUN = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 6.0, "stage.release_time": 30.0}
@@ -215,6 +215,23 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
             bad.publish(msg)
         g.spin_until(lambda: any("bad message" in s.message and "encoding" in s.message for s in statuses), 20,
                      "a WARN on the bad messages")
+        # A marker frame of NaN: a bad message (named), not one out of order.
+        from geometry_msgs.msg import Pose, PoseArray
+        nan_frame = PoseArray(poses=[Pose() for _ in range(25)])
+        for pose in nan_frame.poses:
+            pose.position.x = float("nan")
+        markers = g.node.create_publisher(PoseArray, "/markers/mesh", 10)
+        g.spin_until(lambda: markers.get_subscription_count() > 0, 10, "the estimator subscribing to markers")
+        markers.publish(nan_frame)
+        g.spin_until(lambda: any("/markers/mesh: non-finite values" in s.message for s in statuses), 20,
+                     "a WARN naming the NaN marker frame")
+        figures = {v.key: v.value for v in statuses[-1].values}
+        assert (figures["bad /markers/mesh"], figures["out of order /markers/mesh"]) == ("1", "0"), figures
+        # Good stage samples go on flowing: 1 s (estimator.stale_after) after the last bad
+        # message the WARN no longer names them; the counts stay.
+        g.spin_until(lambda: "bad message" not in statuses[-1].message, 20, "the bad-message WARN cleared")
+        figures = {v.key: v.value for v in statuses[-1].values}
+        assert (figures["bad /tactile/pressure"], figures["bad /markers/mesh"]) == ("3", "1"), figures
         assert est.poll() is None, "the estimator died on a bad message"
         play.send_signal(signal.SIGINT)
         play.wait(timeout=10)
@@ -244,10 +261,11 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.start("simulator", *args)
         g.start("stage", *args, "-p", "use_sim_time:=true")
         # The run recorded as a user would, for rheo analyze at the end.
+        # With the package's own outputs: their types are not in rosbags' store (issue 21).
         recorder = g.start("rheo", "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
-                           "/rheo/object", "--out", str(tmp_path / "recorded"), "--params-file",
-                           str(tmp_path / "params.yaml"))
-        g.spin_until(lambda: "recording 4 topic(s)" in (tmp_path / "rheo.log").read_text(), 30, "the recorder")
+                           "/rheo/object", "/rheo/estimate", "/rheo/diagnosis", "/rheo/pool",
+                           "--out", str(tmp_path / "recorded"), "--params-file", str(tmp_path / "params.yaml"))
+        g.spin_until(lambda: "recording 7 topic(s)" in (tmp_path / "rheo.log").read_text(), 30, "the recorder")
         g.spin_until(lambda: client.server_is_ready(), 30, "the identify action server")
         feedback = []
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
@@ -347,6 +365,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=30) == 0, (tmp_path / "rheo.log").read_text()[-1500:]
         report = analyze(tmp_path / "recorded", discover_effects=False, workers=1).to_json()
+        # The package's outputs decode from the recording's own definitions, with mcap's
+        # reader as with rosbags: the last pool is the fifth push's, as the action said.
+        assert_outputs_decode(tmp_path / "recorded", read_pool(fifth.pool))
         assert len(report["experiments"]) == 5
         assert [e["object"] for e in report["experiments"]] == ["", "", "", "", "new"]
         assert report["experiments"][4]["from_rest"] and report["pools"][-1]["experiments"] == [5]
@@ -364,6 +385,27 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
     finally:
         client.destroy()
         g.close()
+
+
+def assert_outputs_decode(bag: Path, last_pool: dict) -> None:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.highlevel import AnyReader
+
+    [mcap_file] = bag.glob("*.mcap")
+    with mcap_file.open("rb") as fh:
+        decoded = [(channel.topic, msg) for _, channel, _, msg in make_reader(
+            fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/rheo/estimate", "/rheo/diagnosis", "/rheo/pool"])]
+    topics = {t for t, _ in decoded}
+    assert topics == {"/rheo/estimate", "/rheo/diagnosis", "/rheo/pool"}
+    pools = [m for t, m in decoded if t == "/rheo/pool"]
+    assert list(pools[-1].experiments) == last_pool["experiments"] and pools[-1].stated
+    with AnyReader([bag]) as reader:   # no default store: the bag's definitions alone
+        conns = [c for c in reader.connections if c.topic == "/rheo/pool"]
+        last = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)][-1]
+    assert list(last.experiments) == last_pool["experiments"]
+    assert np.allclose(last.values, list(last_pool["params"].values()), rtol=1e-12)
 
 
 def readme_client() -> str:

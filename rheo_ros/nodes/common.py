@@ -147,3 +147,35 @@ class Silence:
     def all_silent(self) -> bool:
         """Some stream was heard and every one is silent now: the data stopped."""
         return any(a is not None for a in self.arrived.values()) and len(self.silent()) == len(self.arrived)
+
+
+class BadMessages:
+    """Malformed messages per input, counted for good, and a warning that holds until good
+    data have flowed for ``clear_after`` s of wall time after the last bad one (a node must
+    not stay WARN for a glitch long past: the count stays in the figures)."""
+
+    def __init__(self, inputs: Iterable[str], clear_after: float) -> None:
+        self.counts: dict[str, int] = dict.fromkeys(inputs, 0)
+        self.clear_after = clear_after
+        self.last = ""                       # "<topic>: what was wrong"
+        self.last_at: float | None = None    # wall time (monotonic) of the last bad message
+        self.good_at: float | None = None    # of the last good one
+
+    def bad(self, stream: str, text: str) -> None:
+        self.counts[stream] += 1
+        self.last, self.last_at = text, time.monotonic()
+
+    def good(self) -> None:
+        self.good_at = time.monotonic()
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def warning(self) -> str:
+        """The WARN reason while it holds ("" once cleared, or with none ever)."""
+        if self.last_at is None:
+            return ""
+        if self.good_at is not None and self.good_at - self.last_at >= self.clear_after:
+            return ""
+        return f"{self.total} bad message(s), last: {self.last}"

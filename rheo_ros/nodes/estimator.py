@@ -57,7 +57,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.nodes.common import NODE_OPTIONS, Silence, declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
@@ -102,8 +102,7 @@ class EstimatorNode(Node):
         self.encode_markers = MarkerArrayEncoder(self.types)
         self.silence = Silence(TOPICS, self.stale_after)
         self.create_timer(self.silence.tick_period, self.silence.tick)
-        self.bad: dict[str, int] = dict.fromkeys(INPUTS, 0)
-        self.last_bad = ""
+        self.bad = BadMessages(INPUTS, self.stale_after)
         self.last_error = ""
         self.latest: Update | None = None
         self.open_params: dict[str, str] = {}
@@ -149,12 +148,14 @@ class EstimatorNode(Node):
         try:
             t = stamp_ns(msg) * 1e-9
             value = decode(msg)
+            if not np.all(np.isfinite(value)):
+                raise MessageError("non-finite values")   # a bad message, not one out of order
             events = add(t, value)
         except (MessageError, RecordError, ValueError) as exc:
-            self.bad[stream] += 1
-            self.last_bad = f"{TOPICS[stream]}: {exc}"
-            self.get_logger().warning(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            self.bad.bad(stream, f"{TOPICS[stream]}: {exc}")
+            self.get_logger().warning(f"{self.bad.last}; message ignored", throttle_duration_sec=5.0)
             return
+        self.bad.good()
         for e in events:  # /rheo/phase is the segmenter node's; the same core finds the same phases
             self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
         self.dispatch(arrival)
@@ -180,9 +181,8 @@ class EstimatorNode(Node):
         try:
             self.core.add_object(stamp_ns(msg) * 1e-9, read_object_hint(msg))
         except MessageError as exc:
-            self.bad["object"] += 1
-            self.last_bad = f"{OBJECT_TOPIC}: {exc}"
-            self.get_logger().warning(f"{self.last_bad}; message ignored")
+            self.bad.bad("object", f"{OBJECT_TOPIC}: {exc}")
+            self.get_logger().warning(f"{self.bad.last}; message ignored")
 
     def on_stage(self, msg: JointState) -> None:
         self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
@@ -424,8 +424,8 @@ class EstimatorNode(Node):
             reasons.append(f"{self.skipped_diagnoses} diagnosis(es) skipped: a newer push's release fit was waiting")
         if self.core.dropped_pushes:
             reasons.append(f"{self.core.dropped_pushes} push(es) dropped: longer than estimator.max_push_time")
-        if any(self.bad.values()):
-            reasons.append(f"{sum(self.bad.values())} bad message(s), last: {self.last_bad}")
+        if self.bad.warning():
+            reasons.append(self.bad.warning())
         sensor = self.core.sensor
         if sensor is not None:
             reasons += sensor.warnings
@@ -433,7 +433,7 @@ class EstimatorNode(Node):
                    **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",
                                                  "marker noise m": f"{sensor.marker_noise:.4g}"}),
                    "interim fits skipped": self.fit_jobs.replaced,
-                   **{f"bad {INPUTS[s]}": n for s, n in self.bad.items()},
+                   **{f"bad {INPUTS[s]}": n for s, n in self.bad.counts.items()},
                    **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},
                    **{f"latency {k} {q} ms": f"{1e3 * np.percentile(v, int(q[1:])):.2f}"
                       for k, v in self.latency.items() if v for q in ("p50", "p99")},

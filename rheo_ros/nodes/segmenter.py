@@ -9,6 +9,7 @@ estimator runs, so both find the same phases.
 
 from __future__ import annotations
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
@@ -29,7 +30,7 @@ from rheo_ros.io.messages import (
     read_pressure_image,
     stamp_ns,
 )
-from rheo_ros.nodes.common import NODE_OPTIONS, Silence, declare_all, diagnostic_array, run_node
+from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 
@@ -46,23 +47,25 @@ class SegmenterNode(Node):
         self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, SENSOR_QOS)
         self.create_subscription(Image, TACTILE_TOPIC, self.on_tactile, SENSOR_QOS)
         self.create_subscription(PoseArray, MARKERS_TOPIC, self.on_markers, SENSOR_QOS)
-        self.bad = 0
-        self.last_bad = ""
         self.stale_after = params["estimator.stale_after"]
+        self.bad = BadMessages((STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC), self.stale_after)
         self.silence = Silence(("measurements",), self.stale_after)
         self.create_timer(self.silence.tick_period, self.silence.tick)
         self.create_timer(params["estimator.diagnostics_period"], self.publish_diagnostics)
         self.get_logger().info("segmenter ready")
 
-    def _feed(self, topic: str, msg, convert) -> None:
+    def _feed(self, topic: str, msg, read, add) -> None:
         self.silence.heard("measurements")
         try:
-            events = convert(stamp_ns(msg) * 1e-9, msg)
+            value = read(msg)
+            if not np.all(np.isfinite(value)):
+                raise MessageError("non-finite values")   # a bad message, not one out of order
+            events = add(stamp_ns(msg) * 1e-9, value)
         except (MessageError, ValueError) as exc:
-            self.bad += 1
-            self.last_bad = f"{topic}: {exc}"
-            self.get_logger().warning(f"{self.last_bad}; message ignored", throttle_duration_sec=5.0)
+            self.bad.bad(topic, f"{topic}: {exc}")
+            self.get_logger().warning(f"{self.bad.last}; message ignored", throttle_duration_sec=5.0)
             return
+        self.bad.good()
         for e in events:
             self.publish(e)
 
@@ -71,15 +74,14 @@ class SegmenterNode(Node):
         self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
 
     def on_stage(self, msg: JointState) -> None:
-        self._feed(STAGE_TOPIC, msg, lambda t, m: self.core.add_stage(t, read_joint_state(m)[0]))
+        self._feed(STAGE_TOPIC, msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
 
     def on_tactile(self, msg: Image) -> None:
-        def total(t: float, m: Image) -> list[PhaseEvent]:
-            return self.core.add_force(t, float(self.setup.tactile.nodal_forces(read_pressure_image(m)[None]).sum()))
-        self._feed(TACTILE_TOPIC, msg, total)
+        total = self.setup.tactile.nodal_forces
+        self._feed(TACTILE_TOPIC, msg, read_pressure_image, lambda t, p: self.core.add_force(t, float(total(p[None]).sum())))
 
     def on_markers(self, msg: PoseArray) -> None:
-        self._feed(MARKERS_TOPIC, msg, lambda t, m: self.core.add_markers(t, read_marker_array(m)))
+        self._feed(MARKERS_TOPIC, msg, read_marker_array, self.core.add_markers)
 
     def close_when_silent(self) -> None:
         """Every topic silent for ``estimator.stale_after`` s with a release open: the data
@@ -92,10 +94,10 @@ class SegmenterNode(Node):
     def publish_diagnostics(self) -> None:
         self.close_when_silent()
         c = self.core
-        figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad,
+        figures = {"experiment": c.experiment, "state": c.state, "bad messages": self.bad.total,
                    **{f"out of order {k}": n for k, n in c.dropped.items()}}
-        if self.bad:
-            level, text = "WARN", f"{self.bad} bad message(s), last: {self.last_bad}"
+        if self.bad.warning():
+            level, text = "WARN", self.bad.warning()
         else:
             level, text = "OK", f"experiment {c.experiment}: {c.state}"
         self.diagnostics.publish(diagnostic_array(self, level, text, figures))
