@@ -26,15 +26,15 @@ PARAMS = """/**:
 def dds_run(request, tmp_path_factory, ros_env):
     """Recorder, simulator and stage as three processes; the recorder stopped by SIGTERM.
 
-    ``realtime``: the stage ticks on the wall clock. ``fast``: the simulator drives
-    ``/clock`` and the stage runs with ``use_sim_time``, one sample per tick.
+    A second recorder is killed with SIGKILL when the first is stopped. ``realtime``: the
+    stage ticks on the wall clock. ``fast``: the simulator drives ``/clock`` and the stage
+    runs with ``use_sim_time``, one sample per tick.
     """
     fast = request.param == "fast"
     tmp = tmp_path_factory.mktemp(request.param)
     params = tmp / "params.yaml"
     params.write_text(PARAMS + ("    simulator.clock: true\n" if fast else ""))
     env = ros_env()
-    logs = {name: (tmp / f"{name}.log").open("w") for name in ("record", "simulator", "stage")}
     cmds = {
         "record": [str(BIN / "rheo"), "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
                    "--out", str(tmp / "recorded"), "--params-file", str(params)],
@@ -42,6 +42,8 @@ def dds_run(request, tmp_path_factory, ros_env):
         "stage": [str(BIN / "stage"), "--ros-args", "--params-file", str(params)]
         + (["-p", "use_sim_time:=true"] if fast else []),
     }
+    cmds["killed"] = cmds["record"][:-4] + ["--out", str(tmp / "killed"), "--params-file", str(params)]
+    logs = {name: (tmp / f"{name}.log").open("w") for name in cmds}
     procs = {name: subprocess.Popen(cmd, env=env, stdout=logs[name], stderr=subprocess.STDOUT)
              for name, cmd in cmds.items()}
     try:
@@ -49,6 +51,8 @@ def dds_run(request, tmp_path_factory, ros_env):
         while "phase done" not in (tmp / "stage.log").read_text() and time.monotonic() < deadline:
             time.sleep(0.2)
         time.sleep(0.5)
+        if "killed" in procs:
+            procs["killed"].kill()   # SIGKILL: no chance to close the bag
         procs["record"].send_signal(signal.SIGTERM)
         record_rc = procs["record"].wait(timeout=20)
     finally:
@@ -80,6 +84,33 @@ def test_recording_stopped_by_sigterm_reads_back_whole(dds_run):
     rec = read_bag(dds_run["recorded"]).record
     assert rec.stage_t.size >= 390           # >= 3.9 s of the 4 s run at 100 Hz
     assert rec.force_t.size >= 195 and rec.marker_t.size >= 39
+
+
+def test_a_recorder_killed_outright_is_rebuilt_by_bag_repair_with_all_but_its_last_second(dds_run):
+    """SIGKILL of ``rheo record`` at the moment the other recorder is stopped: the folder
+    has no metadata.yaml and ``rheo analyze`` says to repair it; ``rheo bag repair``
+    rebuilds a whole bag (the parameters from the recorder's start) whose messages are the
+    clean recording's, up to at most 1 s (the flush period, 0.5 s, plus the stop's
+    spread) before its end - of wall time: stamps in real time; in the fast run sim time
+    runs faster, and only the prefix is checked."""
+    killed = dds_run["tmp"] / "killed"
+    assert not (killed / "metadata.yaml").exists()
+    run = subprocess.run([str(BIN / "rheo"), "analyze", str(killed)], capture_output=True, text=True)
+    assert run.returncode == 2 and f"rheo bag repair {killed}" in run.stderr and "Traceback" not in run.stderr
+    run = subprocess.run([str(BIN / "rheo"), "bag", "repair", str(killed)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert (killed / "metadata.yaml").is_file() and killed.with_name("killed.mcap.killed").is_file()
+    repaired, clean = read_bag(killed), read_bag(dds_run["recorded"])
+    assert repaired.params == clean.params
+    for field in ("stage_t", "force_t", "marker_t"):
+        got, whole = getattr(repaired.record, field), getattr(clean.record, field)
+        assert got.size > 0, field
+        if dds_run["tmp"].name.startswith("realtime"):
+            assert got[-1] >= whole[-1] - 1.0, (field, got[-1], whole[-1])
+        # Every recovered message is one the clean recorder has too.
+        assert np.isin(got, whole).all(), field
+    run = subprocess.run([str(BIN / "rheo"), "bag", "repair", str(killed)], capture_output=True, text=True)
+    assert run.returncode == 2 and "has a metadata.yaml: a whole bag, nothing to repair" in run.stderr
 
 
 def test_recorded_bag_equals_the_directly_simulated_one_within_noise(dds_run):

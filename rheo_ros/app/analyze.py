@@ -50,7 +50,9 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
     """
     path = Path(bag)
     if not (path / "metadata.yaml").is_file():
-        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+        hint = ("; it holds an .mcap file: a recording whose writer was killed? `rheo bag repair "
+                f"{path}` rebuilds it") if path.is_dir() and any(path.glob("*.mcap")) else ""
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml){hint}")
     if params_file:
         return check_params(load_params(params_file), str(params_file))
     params = read_params(path)

@@ -75,6 +75,17 @@ def _play(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bag_repair(args: argparse.Namespace) -> int:
+    from rheo_ros.config.setup import check_params, load_params
+    from rheo_ros.io.bag import repair_bag
+
+    params = check_params(load_params(args.params_file), args.params_file) if args.params_file else None
+    counts = repair_bag(args.bag, params)
+    print(f"{args.bag}: rebuilt with " + ", ".join(f"{n} on {topic}" for topic, n in counts.items())
+          + f" (the killed file kept as {Path(args.bag).name}.mcap.killed beside it)")
+    return 0
+
+
 NODES = ("stage", "simulator", "segmenter", "estimator")
 
 
@@ -254,6 +265,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--discovery-timeout", type=float, default=10.0, metavar="S",
                    help="give up if a topic has no publisher after S seconds (default 10)")
     r.set_defaults(func=_record)
+    bag = sub.add_parser("bag", help="bag tools").add_subparsers(dest="bag_command", required=True)
+    rp = bag.add_parser("repair", help="rebuild a recording whose writer was killed (no metadata.yaml) from its "
+                                       "MCAP stream: every complete message")
+    rp.add_argument("bag", metavar="DIR")
+    rp.add_argument("--params-file", metavar="FILE",
+                    help="parameters to store (default: the recorder's recording.params.yaml, if any)")
+    rp.set_defaults(func=_bag_repair)
     pl = sub.add_parser("play", help="publish a bag's topics over DDS (recorded timing, or as fast as taken with --clock)")
     pl.add_argument("bag", metavar="BAG", help="rosbag2 directory")
     pl.add_argument("--rate", type=positive, default=1.0, help="speed factor on the recorded timing (default 1)")

@@ -12,6 +12,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from struct import error as struct_error
 from typing import Any
 
 import numpy as np
@@ -92,6 +93,92 @@ class BagWriter:
 
     def write_raw(self, topic: str, t_ns: int, data: bytes) -> None:
         self.writer.write(self.connections[topic], t_ns, data)
+
+    def flush(self) -> None:
+        """Put what has been written so far on disk as a closed chunk, so that a writer
+        killed later loses nothing before this call (``repair_bag`` reads it back).
+
+        rosbags' MCAP writer closes a chunk only at 1 MiB or at ``close``; this reaches
+        into its storage (``close_chunk``, the file): rosbags is pinned (requirements.lock)
+        and a test kills a recorder to hold this to it."""
+        storage = self.writer.storage
+        if storage is not None and storage.chunk.bio.tell():
+            storage.close_chunk()
+        if storage is not None:
+            storage.bio.flush()
+
+
+RECORDING_PARAMS = "recording.params.yaml"   # in a bag being recorded: its parameters until metadata.yaml
+
+
+def repair_bag(path: str | Path, params: dict[str, Any] | None = None) -> dict[str, int]:
+    """Rebuild a recording whose writer was killed (an ``.mcap`` with no summary, no
+    ``metadata.yaml``): every complete message of the MCAP stream, with its channel's
+    definition, into a whole bag in the same folder; the unreadable tail (a chunk cut
+    short) is dropped. Parameters: ``params``, else the recorder's ``recording.params.yaml``.
+    Returns the messages recovered per topic.
+
+    Raises:
+        BagError: not a killed recording (metadata.yaml present, no or several .mcap
+            files), or nothing readable in it.
+    """
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    path = Path(path)
+    if (path / "metadata.yaml").is_file():
+        raise BagError(f"{path}: has a metadata.yaml: a whole bag, nothing to repair")
+    mcaps = sorted(path.glob("*.mcap"))
+    if len(mcaps) != 1:
+        raise BagError(f"{path}: {len(mcaps)} .mcap files; a recording has one")
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    messages: list[Message] = []
+    lost = ""
+    with mcaps[0].open("rb") as fh:
+        try:
+            for record in StreamReader(fh, validate_crcs=True).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    messages.append(record)
+        except (McapError, EOFError, ValueError, struct_error) as exc:
+            lost = f"{type(exc).__name__}: {exc}"   # the tail the writer never finished
+    if not messages:
+        raise BagError(f"{mcaps[0]}: no complete message in the stream ({lost or 'empty'})")
+    params_file = path / RECORDING_PARAMS
+    if params is None and params_file.is_file():
+        params = parse_params(params_file.read_text(), str(params_file))
+    store = get_typestore(Stores.EMPTY)
+    for schema in schemas.values():
+        store.register(get_types_from_msg(schema.data.decode(), schema.name))
+    topics = {c.topic: schemas[c.schema_id].name for c in channels.values()}
+    rebuilt = path.with_name(path.name + ".repairing")
+    if rebuilt.exists():
+        raise BagError(f"{rebuilt}: exists (an earlier repair stopped?); remove it first")
+    counts = dict.fromkeys(topics, 0)
+    writer = Writer(rebuilt, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    if params is not None:
+        writer.set_custom_data(PARAMS_KEY, params_yaml(params))
+    with writer:
+        conns = {cid: writer.add_connection(c.topic, topics[c.topic], typestore=store) for cid, c in channels.items()}
+        for m in sorted(messages, key=lambda m: (m.log_time, m.sequence)):
+            writer.write(conns[m.channel_id], m.log_time, m.data)
+            counts[channels[m.channel_id].topic] += 1
+    # The killed file goes beside the bag (kept: nothing is thrown away), the rebuilt bag in its place.
+    mcaps[0].rename(path.with_name(mcaps[0].name + ".killed"))
+    (rebuilt / f"{rebuilt.name}.mcap").rename(rebuilt / f"{path.name}.mcap")
+    meta = (rebuilt / "metadata.yaml").read_text().replace(f"{rebuilt.name}.mcap", f"{path.name}.mcap")
+    (rebuilt / "metadata.yaml").write_text(meta)
+    if params_file.is_file():
+        params_file.unlink()
+    path.rmdir()
+    rebuilt.rename(path)
+    return counts
 
 
 def seconds_to_ns(t: float) -> int:

@@ -2,7 +2,10 @@
 
 There is no rosbag2 in the package index; this records the serialized CDR of each
 message as received. Ctrl-C or SIGTERM stops it cleanly: the writer is closed and
-``metadata.yaml`` written, so the bag reads back whole.
+``metadata.yaml`` written, so the bag reads back whole. What has been received is put
+on disk every ``FLUSH_PERIOD`` s (a closed MCAP chunk) and the parameters at the start
+(``recording.params.yaml``), so that a recorder killed outright (SIGKILL, power) loses at
+most that much: ``rheo bag repair`` rebuilds the rest into a whole bag.
 """
 
 from __future__ import annotations
@@ -20,7 +23,8 @@ import rclpy
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from rheo_ros.io.bag import BagWriter, typestore
+from rheo_ros.config.setup import params_yaml
+from rheo_ros.io.bag import RECORDING_PARAMS, BagWriter, typestore
 from rheo_ros.io.messages import MessageTypes
 from rheo_ros.nodes.errors import GraphError
 
@@ -62,6 +66,9 @@ def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 
         except ParamsError as exc:
             return None, str(exc)
     return None, "no publisher serves the rheo_ros parameters"
+
+
+FLUSH_PERIOD = 0.5   # s of wall time: at most this much received data at risk of a kill
 
 
 def message_definitions(types: Sequence[str]) -> dict[str, str]:
@@ -139,10 +146,17 @@ def record(
                     late = [t for t, s in zip(topics, subs) if s.get_publisher_count() == 0]
                     raise GraphError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
                 rclpy.spin_once(node, timeout_sec=0.01)
+            if params is not None:
+                (Path(out) / RECORDING_PARAMS).write_text(params_yaml(params))   # metadata.yaml comes at close
             print(f"recording {len(topics)} topic(s)", flush=True)
             end = None if duration is None else time.monotonic() + duration
+            flushed = time.monotonic()
             while not stop.is_set() and (end is None or time.monotonic() < end):
                 rclpy.spin_once(node, timeout_sec=0.05)
+                if time.monotonic() - flushed >= FLUSH_PERIOD:
+                    bag.flush()
+                    flushed = time.monotonic()
+        (Path(out) / RECORDING_PARAMS).unlink(missing_ok=True)   # closed: the metadata has them
         return counts
     finally:
         node.destroy_node()
