@@ -208,3 +208,35 @@ def test_message_definitions_of_several_types_share_their_dependencies():
                             "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/Quaternion",
                             "sensor_msgs/msg/JointState", "std_msgs/msg/Header"]
     assert all("MSG: " not in text for text in defs.values())
+
+
+def test_bag_repair_rebuilds_a_truncated_recording_and_refuses_what_is_not_one(tmp_path):
+    """A recording cut off after its second chunk (no summary, no metadata.yaml): ``repair_bag``
+    rebuilds a bag holding every message of the complete chunks, each the original's, with
+    the parameters given; a whole bag, an empty folder and a stream with no complete
+    message are refused by name."""
+    from rheo_ros.io.bag import repair_bag
+
+    source = BAG.parent / "clean_short_keep"   # 2.2 MB: three 1 MiB chunks of zstd-compressed data
+    killed = tmp_path / "killed"
+    killed.mkdir()
+    data = (source / "clean_short_keep.mcap").read_bytes()
+    cut = int(0.8 * len(data))
+    (killed / "killed.mcap").write_bytes(data[:cut])
+    with pytest.raises(BagError, match="has a metadata.yaml: a whole bag, nothing to repair"):
+        repair_bag(source)
+    counts = repair_bag(killed, read_params(source))
+    assert (killed / "metadata.yaml").is_file() and (tmp_path / "killed.mcap.killed").stat().st_size == cut
+    whole = {s: [t for k, t, _ in bag_samples(source) if k == s] for s in ("stage", "image", "markers")}
+    got = {s: [t for k, t, _ in bag_samples(killed) if k == s] for s in ("stage", "image", "markers")}
+    assert 0 < sum(counts.values()) < sum(len(v) for v in whole.values())
+    for stream, stamps in got.items():
+        assert stamps and set(stamps) <= set(whole[stream]), stream
+    assert read_params(killed) == read_params(source)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="0 .mcap files; a recording has one"):
+        repair_bag(tmp_path / "empty")
+    (tmp_path / "stub").mkdir()
+    (tmp_path / "stub" / "stub.mcap").write_bytes(data[:200])
+    with pytest.raises(BagError, match="stub.mcap: no complete message in the stream"):
+        repair_bag(tmp_path / "stub")

@@ -71,7 +71,7 @@ def parameters_of_publishers(node: Any, topics: Sequence[str], timeout: float = 
 FLUSH_PERIOD = 0.5   # s of wall time: at most this much received data at risk of a kill
 
 
-def message_definitions(types: Sequence[str]) -> dict[str, str]:
+def installed_definitions(types: Sequence[str]) -> dict[str, str]:
     """The ``.msg`` text of each of ``types`` that rosbags' store does not know (the
     package's own: /rheo/estimate, /rheo/object, ...), from the interface packages'
     ``share/<package>/msg`` folders on the ament prefix path (a colcon install, or this
@@ -131,7 +131,7 @@ def record(
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         lookup = MessageTypes.rclpy().lookup
         chosen = {t: types[t] for t in topics}
-        with BagWriter(out, params, topics=chosen, definitions=message_definitions(list(chosen.values()))) as bag:
+        with BagWriter(out, params, topics=chosen, definitions=installed_definitions(list(chosen.values()))) as bag:
             def writer(topic: str):
                 def on_message(data: bytes) -> None:
                     bag.write_raw(topic, node.get_clock().now().nanoseconds, data)
