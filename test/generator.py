@@ -42,6 +42,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 from scipy.integrate import solve_ivp
+from scipy.signal import lfilter
 
 GENERATOR_ID = "test/generator.py (independent homogeneous block, scipy solve_ivp)"
 PARAMS_KEY = "rheo_ros.params"
@@ -164,12 +165,16 @@ class Effects:
         a_j = a (1 + spread N(0, 1)) drawn per cell from the seed.
     column_drift: (r Pa/s, spread): each column of cells drifts linearly from t = 0 at its
         own rate r_c = r (1 + spread N(0, 1)) (a gradient along the array).
+    sensor_lag: (tau s, share): a sensor with memory, in no catalogue: each cell reads
+        (1 - share) of the pressure at once and ``share`` through a first-order lag of time
+        tau (the elastomer over the cells creeps), before its noise.
     """
     stiffening: float | None = None
     maxwell: tuple[tuple[float, float], ...] = ()
     adhesion: tuple[float, float] | None = None
     drift: tuple[float, float, float] | None = None
     column_drift: tuple[float, float] | None = None
+    sensor_lag: tuple[float, float] | None = None
 
 
 EFFECTS: dict[str, Effects] = {
@@ -431,6 +436,10 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         r, spread = effects.column_drift
         rates = r * (1.0 + spread * drift_rng.standard_normal(layout.tactile_cols))
         p += tac_t[:, None, None] * rates[None, None, :]
+    if effects.sensor_lag is not None:
+        tau, share = effects.sensor_lag
+        a = 1.0 - math.exp(-(tac_t[1] - tac_t[0]) / tau)   # exact for a uniform grid, held samples
+        p = (1.0 - share) * p + share * lfilter([a], [1.0, a - 1.0], p, axis=0, zi=np.zeros((1, *shape[1:])))[0]
     if sensor.noise > 0:
         p += sensor.noise * tac_rng.standard_normal(shape)
     if sensor.floor:

@@ -72,7 +72,49 @@ def noise_for_metadata(tmp_path: Path) -> Path:
     return bag
 
 
+def rewritten(tmp_path: Path, change: str) -> Path:
+    """The reference bag with its messages changed: ``clock_jump`` (every stamp after 40 s
+    put back 30 s), ``markers_mm`` / ``stage_mm`` (those positions in mm)."""
+    from rosbags.highlevel import AnyReader
+
+    from rheo_ros.io.bag import BagWriter, read_params, typestore
+    from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC
+
+    source, bag = BAGS / "clean_short_keep", tmp_path / "bag"
+    with AnyReader([source], default_typestore=typestore()) as reader, BagWriter(bag, read_params(source)) as out:
+        for conn, t, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            if change == "clock_jump" and stamp > 40.0:
+                msg.header.stamp.sec -= 30
+            elif change == "markers_mm" and conn.topic == MARKERS_TOPIC:
+                for pose in msg.poses:
+                    pose.position.x, pose.position.y = 1e3 * pose.position.x, 1e3 * pose.position.y
+            elif change == "stage_mm" and conn.topic == STAGE_TOPIC:
+                msg.position = msg.position * 1e3
+            out.write(conn.topic, t, msg)
+    return bag
+
+
+def shallow_push(tmp_path: Path) -> list[str]:
+    """A push of 0.05 mm, under segmenter.min_depth (0.1 mm)."""
+    params = tmp_path / "shallow.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    stage: {depth: 0.00005, keep_time: 2.0, release_time: 3.0}\n"
+                      "    simulator: {refine: 1}\n")
+    run = rheo("simulate", "--params-file", str(params), "--out", str(tmp_path / "bag"))
+    assert run.returncode == 0, run.stderr
+    return [str(tmp_path / "bag")]
+
+
 CASES = {
+    "clock jump": (lambda tmp: [str(rewritten(tmp, "clock_jump"))],
+                   r"bag: /\S+: header stamps jump back 30 s at 4\d\.\d+ s \(a clock jump"),
+    "markers in mm": (lambda tmp: [str(rewritten(tmp, "markers_mm"))],
+                      r"bag: /markers/mesh: the markers span 80(\.\d+)? across, the specimen is 0.08 m wide: not in m \(mm\?\)"),
+    "stage in mm": (lambda tmp: [str(rewritten(tmp, "stage_mm"))],
+                    r"bag: /stage/joint_states: position \S+ at \S+ s is deeper than the specimen's height \(0.08 m\)"),
+    "push too shallow": (shallow_push, r"the stage went 0.05 mm deep, under segmenter.min_depth \(0.1 mm\): "
+                                       r"too shallow a push to identify"),
     "metadata of random bytes": (lambda tmp: [str(noise_for_metadata(tmp))], r"metadata.yaml: not text"),
     "no stored parameters": (without_params, r"bag: no parameters in the bag's metadata; give --params-file"),
     "missing topic": (without_markers, r"bag: /markers/mesh: no messages|bag: /stage/joint_states: no messages"),

@@ -239,7 +239,7 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
             {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
              "eligible": False},
         ],
-        "evidence": "the keep misfits", "undecided": ["a", "b"],
+        "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [],
     }
     assert Diagnosis("m", True, None, (), "fine").undecided == ()
 
@@ -266,6 +266,44 @@ def test_verdict_flattens_every_step_in_order():
     assert one.adequate is False and isinstance(one.adequate, bool)
     assert one.missing_effects == () and one.undecided == ("adhesion", "sensor_drift")
     assert one.candidates == middle.candidates and one.evidence == "step two."
+
+
+def test_effects_that_leave_a_misfit_or_a_degenerate_fit_are_the_closest_not_missing():
+    """Issue 24: the loop added relaxation_branch, and with it the model still misfits (or
+    fits but c1 collapsed): nothing is named, relaxation_branch is the closest, the final
+    word says the catalogue does not explain the data; the base model alone adequate is
+    explained with nothing named."""
+    first = Diagnosis("three_element", False, "relaxation_branch", (candidate("relaxation_branch", -30.0),),
+                      "step one.", ())
+    misfit = Diagnosis("three_element+relaxation_branch", False, None, (), "step two.", ())
+    v = Verdict.of([first, misfit])
+    assert (v.explained, v.missing_effects, v.closest) == (False, (), ("relaxation_branch",))
+    assert v.evidence.startswith("step one. step two. Final verdict: the catalogue does not explain these data: "
+                                 "with relaxation_branch the model still misfits.")
+    degenerate = Diagnosis("three_element+relaxation_branch", True, None, (), "step two.", (), ("c1",))
+    v = Verdict.of([first, degenerate])
+    assert (v.explained, v.missing_effects, v.closest, v.degenerate) == (False, (), ("relaxation_branch",), ("c1",))
+    assert "the fit is degenerate (c1 collapsed)" in v.evidence
+    fits = Diagnosis("three_element+relaxation_branch", True, None, (), "step two.", ())
+    v = Verdict.of([first, fits])
+    assert (v.explained, v.missing_effects, v.closest) == (True, ("relaxation_branch",), ())
+    assert Verdict.of([Diagnosis("three_element", True, None, (), "fine")]).explained is True
+
+
+def test_collapsed_names_what_an_added_effect_took_from_the_base_model():
+    """A parameter the base determined and the model with the effect leaves at a bound
+    (infinite std), and a Voigt time c1/E under the sampling interval."""
+    def fit(params, std):
+        return SimpleNamespace(estimate=SimpleNamespace(params=params, std=std))
+
+    base = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33}, {"E": 10.0, "c1": 100.0, "c2": 1e5, "gamma": 1e-3})
+    whole = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33},
+                {"E": 12.0, "c1": 120.0, "c2": np.inf, "gamma": 1e-3})
+    assert decision.collapsed(whole, base, 0.02) == ("c2",)
+    tiny = fit({"E": 3e4, "c1": 1.44e-6, "c2": 3e7, "gamma": 0.33},
+               {"E": 12.0, "c1": 9.5e-13, "c2": 1e5, "gamma": 1e-3})
+    assert decision.collapsed(tiny, base, 0.02) == ("c1",)
+    assert decision.collapsed(base, base, 0.02) == ()
 
 
 def test_the_footprint_counts_phases_beyond_five_sd_and_any_effect_of_two_phases(monkeypatch):

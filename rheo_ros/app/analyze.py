@@ -15,6 +15,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rheo_ros.config.setup import Setup, check_params, load_params
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
@@ -61,9 +63,18 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
     return check_params(params, f"{path}: parameters")
 
 
+# A topic's header stamps going back by more than this (s) is a clock jump, not a reorder
+# (the core drops a message older than its stream's last, as a node does).
+CLOCK_JUMP = 0.5
+# Sizes further than this factor from the parameters' are in other units (mm for m).
+UNITS_FACTOR = 10.0
+
+
 def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
     """The bag's measurement samples (``bag_samples``) with each frame's shape checked
-    against the parameters, and a topic with no message refused at the end.
+    against the parameters, each topic's stamps against clock jumps, the first marker
+    frame's extent and the stage's depth against the specimen's size (units), and a topic
+    with no message refused at the end.
 
     Raises:
         BagError: names the file, the topic and what is wrong.
@@ -71,7 +82,21 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
     counts = dict.fromkeys(TOPIC_OF, 0)   # the measurement topics must all be there (/rheo/object may not)
     rows, cols = setup.tactile.rows, setup.tactile.cols
     markers = setup.mesh.nodes.shape
+    width, height = setup.params["specimen.width"], setup.params["specimen.height"]
+    last: dict[str, float] = {}
     for stream, t, data in bag_samples(bag):
+        if stream in TOPIC_OF and t < last.get(stream, -np.inf) - CLOCK_JUMP:
+            raise BagError(f"{bag}: {TOPIC_OF[stream]}: header stamps jump back {last[stream] - t:.3g} s at "
+                           f"{last[stream]:.3f} s (a clock jump: the record cannot be put in order)")
+        last[stream] = max(t, last.get(stream, -np.inf))
+        if stream == "stage" and data > height:
+            raise BagError(f"{bag}: {STAGE_TOPIC}: position {data:.4g} at {t:.3f} s is deeper than the specimen's "
+                           f"height ({height:g} m): not in m (mm?)")
+        if stream == "markers" and not counts["markers"] and data.shape == markers:
+            span = float(np.ptp(data[:, 0]))
+            if not width / UNITS_FACTOR < span < UNITS_FACTOR * width:
+                raise BagError(f"{bag}: {MARKERS_TOPIC}: the markers span {span:.4g} across, the specimen is "
+                               f"{width:g} m wide: not in m (mm?)")
         if stream == "image" and data.shape != (rows, cols):
             raise BagError(f"{bag}: {TACTILE_TOPIC}: image {data.shape[0]} x {data.shape[1]} at {t:.3f} s, "
                               f"parameters say {rows} x {cols}")
@@ -97,12 +122,19 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
     add = {"stage": stream.add_stage, "image": stream.add_image, "markers": stream.add_markers,
            "object": stream.add_object}
     jobs: list[Job] = []
+    deepest = 0.0
     for name, t, data in checked_samples(bag, setup):
         add[name](t, data)
         jobs += stream.ready_jobs()
+        if name == "stage":
+            deepest = max(deepest, float(data))
     stream.finish()
     jobs += stream.ready_jobs(silent=stream.streams)
     releases = [j for j in jobs if j.event.name == "release"]
+    min_depth = setup.segmenter_config().min_depth
+    if not releases and 0.0 < deepest < min_depth:
+        raise RecordError(f"{bag}: {STAGE_TOPIC}: the stage went {deepest * 1e3:.3g} mm deep, under "
+                          f"segmenter.min_depth ({min_depth * 1e3:.3g} mm): too shallow a push to identify")
     if not releases:
         seen = ", ".join(sorted({j.event.name for j in jobs})) or "no phase"
         raise RecordError(f"{bag}: {STAGE_TOPIC}: no push with a release (the stage never let go after a pull "

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.config.setup import Setup
-from rheo_ros.diagnosis.decision import Diagnosis, Verdict
+from rheo_ros.diagnosis.decision import Diagnosis, Verdict, remaining
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
@@ -136,6 +136,9 @@ class Analysis:
             **first["diagnosis"], "steps": [],   # candidates, undecided: the first member's (experiments)
             "missing_effect": missing[0] if missing else None, "missing_effects": missing,
             "adequate": adequate, "adequate_model": finals.pop() if adequate and len(finals) == 1 else None,
+            "explained": None if any(v.explained is None for v in verdicts) else all(v.explained for v in verdicts),
+            "closest": list(dict.fromkeys(e for v in verdicts for e in v.closest)), "remaining": None,
+            "degenerate": [],   # each push's: experiments
             "evidence": " ".join(f"Experiment {k}: {v.evidence}" for k, v in zip(numbers, verdicts)),
             "experiments": list(numbers),
         }
@@ -160,6 +163,11 @@ class Analysis:
         diagnosis["missing_effect"] = verdict.missing_effects[0] if verdict.missing_effects else None
         diagnosis["missing_effects"] = list(verdict.missing_effects)
         diagnosis["adequate"] = verdict.adequate
+        # explained false: no effect named; the closest the loop found and what is left.
+        diagnosis["explained"] = verdict.explained
+        diagnosis["closest"] = list(verdict.closest)
+        diagnosis["degenerate"] = list(verdict.degenerate)
+        diagnosis["remaining"] = remaining(self.final) if verdict.explained is False else None
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
         diagnosis["evidence"] = verdict.evidence if self.diagnoses else "not diagnosed (--no-discover)"
         diagnosis["steps"] = [d.to_json() | {"model": d.model} for d in self.diagnoses]

@@ -22,6 +22,14 @@ offset fitted to a bias in the keep is no drift when the readings before contact
 and after release are clean. When the best two candidates are within
 ``BIC_DECISIVE`` of each other, the data cannot decide between them, and the
 diagnosis says so and names the experiments that would.
+
+The effects the loop added are named missing only when they explain the data
+(``Verdict.explained``): with them the model fits within the noise (the rule that calls
+a model adequate) and the fit is not degenerate (``collapsed``: no base parameter the
+base model determined run off to a bound by an added effect, no Voigt time below the
+sampling interval). Otherwise the catalogue does not explain these data: nothing is
+named, the effects added are the closest (``Verdict.closest``), and what the last model
+leaves is described (``remaining``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ import numpy as np
 
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PHASES
+from rheo_ros.identification.fit import misfit_limit
 from rheo_ros.identification.pipeline import is_determined
 from rheo_ros.models.effects import effect_class
 
@@ -98,6 +107,8 @@ class Diagnosis:
         candidates: every effect tried, best BIC first.
         evidence: a paragraph a person can read.
         undecided: the effects the data cannot tell apart (empty when decided).
+        degenerate: the judged model's parameters that collapsed once effects were added
+            (``collapsed``; set by ``discover`` on its last diagnosis).
     """
 
     model: str
@@ -106,13 +117,14 @@ class Diagnosis:
     candidates: tuple[Candidate, ...]
     evidence: str
     undecided: tuple[str, ...] = ()
+    degenerate: tuple[str, ...] = ()
 
     def to_json(self) -> dict:
         return {
             "adequate": self.adequate, "missing_effect": self.missing_effect,
             "candidates": [{"effect": c.effect, "form": c.form, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
                             "explained": _finite(c.explained), "eligible": c.eligible} for c in self.candidates],
-            "evidence": self.evidence, "undecided": list(self.undecided),
+            "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
         }
 
 
@@ -124,10 +136,16 @@ class Verdict:
     Attributes:
         adequate: the last model fits within the noise and no effect earns its
             parameters (None: not diagnosed).
-        missing_effects: the effects added, in the order found.
+        missing_effects: the effects found missing, in the order found: those the loop
+            added, when they explain the data (``explained``); else none.
         undecided: the effects the data cannot tell apart on the last model.
         candidates: every effect tried on the base model, best BIC first.
-        evidence: the paragraphs of every step, in order.
+        evidence: the paragraphs of every step, in order, and the final word.
+        explained: the last model (the base, or with the effects added) fits within the
+            noise and is not degenerate (None: not diagnosed). False with effects added:
+            the catalogue does not explain these data.
+        closest: the effects the loop added when they do not explain the data.
+        degenerate: the last model's collapsed parameters (``collapsed``).
     """
 
     adequate: bool | None
@@ -135,15 +153,27 @@ class Verdict:
     undecided: tuple[str, ...]
     candidates: tuple[Candidate, ...]
     evidence: str
+    explained: bool | None = None
+    closest: tuple[str, ...] = ()
+    degenerate: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, diagnoses: Sequence[Diagnosis]) -> Verdict:
         if not diagnoses:
             return cls(None, (), (), (), "not diagnosed")
-        return cls(adequate=bool(diagnoses[-1].adequate),
-                   missing_effects=tuple(d.missing_effect for d in diagnoses if d.missing_effect),
-                   undecided=diagnoses[-1].undecided, candidates=diagnoses[0].candidates,
-                   evidence=" ".join(d.evidence for d in diagnoses))
+        last = diagnoses[-1]
+        added = tuple(d.missing_effect for d in diagnoses if d.missing_effect)
+        explained = bool(last.adequate) and not last.degenerate
+        evidence = " ".join(d.evidence for d in diagnoses)
+        if added and not explained:
+            why = (f"the fit is degenerate ({', '.join(last.degenerate)} collapsed)" if last.degenerate
+                   else f"with {' and '.join(added)} the model still misfits")
+            evidence += (f" Final verdict: the catalogue does not explain these data: {why}. "
+                         f"{', '.join(added)} is the closest, not the missing effect; the three-element "
+                         "parameters are biased by what is missing (see remaining).")
+        return cls(adequate=bool(last.adequate), missing_effects=added if explained else (),
+                   undecided=last.undecided, candidates=diagnoses[0].candidates, evidence=evidence,
+                   explained=explained, closest=() if explained else added, degenerate=last.degenerate)
 
 
 def _finite(x: float) -> float | None:
@@ -169,6 +199,35 @@ def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMIN
                    or not any(is_determined(values[k], std[k], relative_limit) for k in signed)):
         out += signed
     return out
+
+
+def collapsed(fit: ModelFit, base: ModelFit, sample_interval: float) -> tuple[str, ...]:
+    """The base parameters that ``fit`` (the base model with effects added) lost: one the
+    base fit determined (finite std) and ``fit`` leaves at a bound (infinite std), and a
+    Voigt time c1/E shorter than ``sample_interval`` (s; no reading resolves it: a dashpot
+    run towards zero while an effect carries the response)."""
+    std, base_std, p = fit.estimate.std, base.estimate.std, fit.estimate.params
+    out = [n for n in ("E", "c1", "c2", "gamma")
+           if np.isfinite(base_std.get(n, np.inf)) and not np.isfinite(std.get(n, np.inf))]
+    if "c1" not in out and p["c1"] / p["E"] < sample_interval:
+        out.append("c1")
+    return tuple(out)
+
+
+def remaining(fit: ModelFit) -> dict:
+    """What ``fit`` leaves (an unexplained misfit), described for a user writing the
+    missing effect: each signal and phase whose residuals exceed the noise (ratio of the
+    RMS to the noise, the mean residual in noise units: its sign and size), and whether
+    it is in the force alone or the markers too (a sensor-side effect, or a material one)."""
+    cells = [{"signal": s.signal, "phase": s.phase, "ratio": float(s.rms / s.noise),
+              "bias": float(s.bias / s.noise)}
+             for s in fit.comparison.stats
+             if s.noise > 0 and s.samples and s.rms / s.noise > misfit_limit(s.samples)]
+    force = [c for c in cells if c["signal"].startswith("P")]
+    markers = [c for c in cells if not c["signal"].startswith("P")]
+    return {"misfits": cells, "phases": sorted({c["phase"] for c in cells}, key=lambda ph: (PHASES.index(ph) if ph in PHASES else 9, ph)),
+            "segments": sorted({c["signal"] for c in force}), "force_only": bool(force) and not markers,
+            "markers_only": bool(markers) and not force}
 
 
 def phase_excess(fit: ModelFit, phases: Sequence[str]) -> float:

@@ -12,7 +12,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_SIGMAS, Candidate, Diagnosis, judge, phase_excess
+from rheo_ros.diagnosis.decision import (
+    BIC_DECISIVE,
+    EXCESS_SIGMAS,
+    Candidate,
+    Diagnosis,
+    collapsed,
+    judge,
+    phase_excess,
+)
 from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import ModelFit, add_effect, fit_model, polish, restart_from_corrected
 from rheo_ros.experiment import PHASES
@@ -172,6 +180,9 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
     limit = len(catalogue()) if max_effects is None else max_effects
     while True:
         verdict = diagnose(record, forward, models[-1], candidates, noise, progress, workers)
+        if len(models) > 1:   # effects added: did they leave the base model whole?
+            interval = float(np.median(np.diff(record.force_t))) if record.force_t.size > 1 else 0.0
+            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], interval))
         verdicts.append(verdict)
         if verdict.missing_effect is None or len(models) > limit:
             return models, verdicts

@@ -117,13 +117,15 @@ class OnlineDiagnosis:
     std: np.ndarray
     evidence: str
     final: Estimate | None = None   # the last model's fit (pooled with the other pushes')
+    explained: bool = True          # Verdict.explained: the last model fits and is not degenerate
 
     @property
     def verdict(self) -> str:
         """adequate (the base model), missing_effect (found, and with it adequate),
         undecided (the data ask for an effect but cannot pin it down or tell two apart) or
-        unexplained (the model misfits and no effect in the catalogue explains it)."""
-        if self.adequate:
+        unexplained (the model misfits, or the effects added leave it degenerate: no
+        effect in the catalogue explains it)."""
+        if self.adequate and self.explained:
             return "missing_effect" if self.missing_effects else "adequate"
         return "undecided" if self.undecided else "unexplained"
 
@@ -146,7 +148,7 @@ class OnlineDiagnosis:
             delta_bic=np.array([c.delta_bic for c in verdict.candidates]),
             names=tuple(last.params), values=np.array(list(last.params.values())),
             std=np.array([std.get(n, np.inf) for n in last.params]),
-            evidence=verdict.evidence, final=last,
+            evidence=verdict.evidence, final=last, explained=bool(verdict.explained),
         )
 
 

@@ -44,6 +44,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from rheo_ros.diagnosis.analysis import Analysis
+from rheo_ros.diagnosis.decision import Verdict
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PUSH_PHASES, Phase
 from rheo_ros.identification.fit import away_from_boundaries
@@ -118,6 +119,13 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
     if not result.diagnoses:
         return f"Not diagnosed: {final} fitted as asked, no effect searched for.", False
     last = result.diagnoses[-1]
+    verdict = Verdict.of(result.diagnoses)
+    if verdict.closest:
+        how = (f"is degenerate ({', '.join(verdict.degenerate)} collapsed)" if verdict.degenerate
+               else "still misfits")
+        return (f"The catalogue does not explain these data: with {', '.join(verdict.closest)}, the closest, "
+                f"{final} {how}; no effect is named missing and the three-element parameters are biased "
+                "by what is missing (see what remains).", False)
     found = result.missing_effects
     head = ("Missing effects found, in order: " + ", ".join(found) + "." if found
             else "No missing effect found.")
