@@ -17,7 +17,7 @@ BIN = Path(sys.executable).parent
 PARAMS = """/**:
   ros__parameters:
     stage: {depth: 0.002, velocity: 0.002, keep_time: 1.0, start_delay: 0.5, retract_speed: 0.02,
-            release_time: 1.5, wait_for_subscribers: 2}
+            release_time: 1.5, wait_for_subscribers: 3}
     simulator.seed: 4
 """
 
@@ -107,8 +107,9 @@ def test_a_recorder_killed_outright_is_rebuilt_by_bag_repair_with_all_but_its_la
         assert got.size > 0, field
         if dds_run["tmp"].name.startswith("realtime"):
             assert got[-1] >= whole[-1] - 1.0, (field, got[-1], whole[-1])
-        # Every recovered message is one the clean recorder has too.
-        assert np.isin(got, whole).all(), field
+        # Every recovered message is one the clean recorder has too (from its first: the two
+        # recorders' subscriptions match the publishers a frame or so apart).
+        assert np.isin(got[got >= whole[0]], whole).all(), field
     run = subprocess.run([str(BIN / "rheo"), "bag", "repair", str(killed)], capture_output=True, text=True)
     assert run.returncode == 2 and "has a metadata.yaml: a whole bag, nothing to repair" in run.stderr
 
@@ -159,7 +160,7 @@ def test_ctrl_c_leaves_a_bag_that_reads_back_whole(tmp_path, ros_env):
 
     env = ros_env()
     params = tmp_path / "params.yaml"
-    params.write_text(PARAMS.replace("wait_for_subscribers: 2", "wait_for_subscribers: 1"))
+    params.write_text(PARAMS.replace("wait_for_subscribers: 3", "wait_for_subscribers: 1"))
     rec = subprocess.Popen([str(BIN / "rheo"), "record", "/stage/joint_states", "--out", str(tmp_path / "bag")],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     stage_log = tmp_path / "stage.log"
