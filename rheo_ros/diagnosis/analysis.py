@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.config.setup import Setup
-from rheo_ros.diagnosis.decision import Diagnosis, Verdict, remaining
+from rheo_ros.diagnosis.decision import Diagnosis, Verdict
 from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.diagnosis.remaining import remaining
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import SensorNoise
@@ -167,7 +168,7 @@ class Analysis:
         diagnosis["explained"] = verdict.explained
         diagnosis["closest"] = list(verdict.closest)
         diagnosis["degenerate"] = list(verdict.degenerate)
-        diagnosis["remaining"] = remaining(self.final) if verdict.explained is False else None
+        diagnosis["remaining"] = remaining(self.final, self.record) if verdict.explained is False else None
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
         diagnosis["evidence"] = verdict.evidence if self.diagnoses else "not diagnosed (--no-discover)"
         diagnosis["steps"] = [d.to_json() | {"model": d.model} for d in self.diagnoses]

@@ -29,7 +29,7 @@ a model adequate) and the fit is not degenerate (``collapsed``: no base paramete
 base model determined run off to a bound by an added effect, no Voigt time below the
 sampling interval). Otherwise the catalogue does not explain these data: nothing is
 named, the effects added are the closest (``Verdict.closest``), and what the last model
-leaves is described (``remaining``).
+leaves is described (``diagnosis.remaining``).
 """
 
 from __future__ import annotations
@@ -214,20 +214,13 @@ def collapsed(fit: ModelFit, base: ModelFit, sample_interval: float) -> tuple[st
     return tuple(out)
 
 
-def remaining(fit: ModelFit) -> dict:
-    """What ``fit`` leaves (an unexplained misfit), described for a user writing the
-    missing effect: each signal and phase whose residuals exceed the noise (ratio of the
-    RMS to the noise, the mean residual in noise units: its sign and size), and whether
-    it is in the force alone or the markers too (a sensor-side effect, or a material one)."""
-    cells = [{"signal": s.signal, "phase": s.phase, "ratio": float(s.rms / s.noise),
-              "bias": float(s.bias / s.noise)}
-             for s in fit.comparison.stats
-             if s.noise > 0 and s.samples and s.rms / s.noise > misfit_limit(s.samples)]
-    force = [c for c in cells if c["signal"].startswith("P")]
-    markers = [c for c in cells if not c["signal"].startswith("P")]
-    return {"misfits": cells, "phases": sorted({c["phase"] for c in cells}, key=lambda ph: (PHASES.index(ph) if ph in PHASES else 9, ph)),
-            "segments": sorted({c["signal"] for c in force}), "force_only": bool(force) and not markers,
-            "markers_only": bool(markers) and not force}
+def misfit_cells(fit: ModelFit) -> list[dict]:
+    """Each signal and phase whose residuals in ``fit`` exceed what the noise allows: the
+    RMS over the noise (``ratio``) and the mean residual in noise units (``bias``: sign
+    and size)."""
+    return [{"signal": s.signal, "phase": s.phase, "ratio": float(s.rms / s.noise), "bias": float(s.bias / s.noise)}
+            for s in fit.comparison.stats
+            if s.noise > 0 and s.samples and s.rms / s.noise > misfit_limit(s.samples)]
 
 
 def phase_excess(fit: ModelFit, phases: Sequence[str]) -> float:
