@@ -11,6 +11,19 @@ import numpy as np
 # the effects' footprints and the reports.
 PUSH_PHASES = ("pull", "keep", "release")
 PHASES = ("before", *PUSH_PHASES)
+# What a robot may say of the object a push meets (an identify goal's ``object``):
+# another object, the one pushed before, or nothing (the data decide).
+OBJECT_HINTS = ("new", "same", "")
+
+
+def check_object_hint(kind: str) -> str:
+    """``kind`` if it is one of ``OBJECT_HINTS``.
+
+    Raises:
+        ValueError: another word (the message names the field)."""
+    if kind not in OBJECT_HINTS:
+        raise ValueError(f"object: {kind!r} is none of new, same or empty (the data decide)")
+    return kind
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,7 @@ from rheo_ros.identification.pipeline import (
     fit_starts,
     relaxation_unseen,
 )
-from rheo_ros.io.bag import bag_samples, read_params
+from rheo_ros.io.bag import bag_samples, read_params, require_bag
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
@@ -50,11 +50,7 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
         BagError: not a bag. RecordError: a bag without parameters and no file given.
         ParamsError: a bad parameters file.
     """
-    path = Path(bag)
-    if not (path / "metadata.yaml").is_file():
-        hint = ("; it holds an .mcap file: a recording whose writer was killed? `rheo bag repair "
-                f"{path}` rebuilds it") if path.is_dir() and any(path.glob("*.mcap")) else ""
-        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml){hint}")
+    path = require_bag(bag)
     if params_file:
         return check_params(load_params(params_file), str(params_file))
     params = read_params(path)

@@ -17,6 +17,7 @@ import numpy as np
 
 from rheo_ros.diagnosis.decision import BIC_DECISIVE, misfit_cells
 from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.experiment import PHASES
 from rheo_ros.identification.fit import away_from_boundaries
 from rheo_ros.record import Record
 from rheo_ros.sensors import difference_noise
@@ -78,7 +79,7 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
             inside = (record.force_t > phase.t_start) & (record.force_t < phase.t_end) & away
             if inside.sum() >= 10:
                 shapes[phase.name] = phase_shape(record.force_t[inside], residual[inside], noise)
-    order = ("before", "pull", "keep", "release", "after")
+    order = (*PHASES, "after")
     return {"misfits": cells,
             "phases": sorted({c["phase"] for c in cells}, key=lambda ph: (order.index(ph) if ph in order else 9, ph)),
             "segments": sorted({c["signal"] for c in force}), "force_only": bool(force) and not markers,

@@ -108,6 +108,20 @@ class BagWriter:
             storage.bio.flush()
 
 
+def require_bag(path: str | Path) -> Path:
+    """``path`` as a Path, if it is a rosbag2 directory (it has a metadata.yaml).
+
+    Raises:
+        BagError: it is not; where it holds an .mcap file (a recording whose writer was
+            killed), the message says to repair it (``repair_bag``)."""
+    path = Path(path)
+    if not (path / "metadata.yaml").is_file():
+        hint = ("; it holds an .mcap file: a recording whose writer was killed? `rheo bag repair "
+                f"{path}` rebuilds it") if path.is_dir() and any(path.glob("*.mcap")) else ""
+        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml){hint}")
+    return path
+
+
 RECORDING_PARAMS = "recording.params.yaml"   # in a bag being recorded: its parameters until metadata.yaml
 
 
@@ -257,9 +271,7 @@ def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagConte
         BagError: unreadable bag, missing topic, malformed message (the message
             names the file, topic and field).
     """
-    path = Path(path)
-    if not (path / "metadata.yaml").is_file():
-        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    path = require_bag(path)
     params = params or read_params(path)
     if params is None:
         raise BagError(f"{path}: no parameters in the bag's metadata; give --params-file")

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from rheo_ros.experiment import check_object_hint
+
 STAGE_TOPIC = "/stage/joint_states"
 TACTILE_TOPIC = "/tactile/pressure"
 MARKERS_TOPIC = "/markers/mesh"
@@ -169,7 +171,6 @@ OBJECT_TOPIC = "/rheo/object"
 OBJECT_TYPE = "rheo_ros_interfaces/msg/ObjectHint"
 POOL_TOPIC = "/rheo/pool"
 POOL_TYPE = "rheo_ros_interfaces/msg/Pool"
-OBJECT_HINTS = ("new", "same", "")   # ObjectHint.object: another object, the same one, the data decide
 
 
 def _time(types: MessageTypes, t: float) -> Any:
@@ -259,9 +260,10 @@ def read_object_hint(msg: Any) -> str:
 
     Raises:
         MessageError: another word."""
-    if msg.object not in OBJECT_HINTS:
-        raise MessageError(f"object: {msg.object!r} is none of new, same or empty (the data decide)")
-    return msg.object
+    try:
+        return check_object_hint(msg.object)
+    except ValueError as exc:
+        raise MessageError(str(exc)) from None
 
 
 def pool_message(types: MessageTypes, update: Any) -> Any:

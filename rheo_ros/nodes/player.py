@@ -25,7 +25,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
-from rheo_ros.io.bag import bag_reader
+from rheo_ros.io.bag import bag_reader, require_bag
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MessageTypes
 from rheo_ros.nodes.errors import GraphError
@@ -100,9 +100,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         BagError: unreadable bag, unknown topic. GraphError: subscribers missing after
             ``discovery_timeout`` s.
     """
-    path = Path(path)
-    if not (path / "metadata.yaml").is_file():
-        raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml)")
+    path = require_bag(path)
     if not rate > 0:
         raise ValueError(f"--rate: {rate} must be positive")
     if not (isinstance(loops, int) and loops >= 1):

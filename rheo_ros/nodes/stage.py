@@ -28,10 +28,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from rheo_ros.config.setup import ParamsError, Setup, check_params
+from rheo_ros.experiment import check_object_hint
 from rheo_ros.io.messages import (
     DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
-    OBJECT_HINTS,
     OBJECT_TOPIC,
     POOL_TOPIC,
     STAGE_TOPIC,
@@ -172,8 +172,10 @@ class StageNode(Node):
                    if not getattr(goal, k) <= 0}
         result = Identify.Result()
         try:
-            if goal.object not in OBJECT_HINTS:
-                raise ParamsError(f"object: {goal.object!r} is none of new, same or empty (the data decide)")
+            try:
+                check_object_hint(goal.object)
+            except ValueError as exc:
+                raise ParamsError(str(exc)) from None
             profile = Setup(check_params({**self.setup.params, **changes}, "goal")).profile.pushes[0]   # one push
         except ParamsError as exc:
             handle.abort()

@@ -37,7 +37,7 @@ from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.diagnosis.decision import Verdict
 from rheo_ros.diagnosis.discover import discover
 from rheo_ros.diagnosis.fits import ModelFit, assess
-from rheo_ros.experiment import PUSH_PHASES, StageProfile
+from rheo_ros.experiment import PUSH_PHASES, StageProfile, check_object_hint
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
@@ -444,9 +444,7 @@ class OnlineEstimator:
 
         Raises:
             ValueError: ``kind`` is none of new, same, "" (the data decide)."""
-        if kind not in ("new", "same", ""):
-            raise ValueError(f"object: {kind!r} is none of new, same or empty (the data decide)")
-        bisect.insort(self.hints, (float(t), kind))
+        bisect.insort(self.hints, (float(t), check_object_hint(kind)))
         del self.hints[:-100]   # a hint older than a hundred goals has long been applied
 
     def object_of(self, profile: StageProfile) -> str:
