@@ -35,14 +35,14 @@ def make_bag(directory, name: str, seed: int, effects: dict[str, dict[str, float
 
 
 HIDDEN = [
-    # (effect, its parameters, seed): two magnitudes each, the smaller a few times the noise.
-    ("relaxation_branch", {"stiffness": 1.5e4, "viscosity": 1.2e5}, 11),      # 8 s, 30 % of E
+    # (effect, its parameters, seed): the weaker of the magnitudes tried, a few times the
+    # noise (the stronger ones - a 30 % arm of 8 s, stiffening 6, drift 0.2 N - passed
+    # too, and the bench covers sizes); adhesion at both, the stronger with the largest
+    # parameter error measured (4.1 std).
     ("relaxation_branch", {"stiffness": 1.0e4, "viscosity": 3.0e4}, 12),      # 3 s, 20 % of E
     ("adhesion", {"fraction": 0.15, "time": 60.0}, 13),
     ("adhesion", {"fraction": 0.4, "time": 15.0}, 14),
     ("strain_stiffening", {"coefficient": 2.0}, 15),
-    ("strain_stiffening", {"coefficient": 6.0}, 16),
-    ("sensor_drift", {"offset": 0.2, "rate": -1.5e-3}, 17),
     ("sensor_drift", {"offset": 0.12, "rate": 2.0e-3}, 18),
 ]
 
@@ -72,10 +72,11 @@ def test_a_hidden_effect_is_named_and_adding_it_cuts_the_force_error_below_a_thi
 
 
 CLEAN = [
-    # (seed, extra parameters): short and long keeps, both geometries.
-    (21, {}), (22, {}), (23, {}), (24, {}),
-    (25, {"stage.keep_time": 60.0}), (26, {"stage.keep_time": 60.0}), (27, {"stage.keep_time": 60.0}),
-    (28, {"geometry": "uniaxial"}), (29, {"geometry": "uniaxial"}),
+    # (seed, extra parameters): short and long keeps, both geometries (ten seeds ran clean
+    # at stop 35; the bench counts false claims over many more).
+    (21, {}), (22, {}),
+    (25, {"stage.keep_time": 60.0}), (26, {"stage.keep_time": 60.0}),
+    (28, {"geometry": "uniaxial"}),
     (30, {"geometry": "uniaxial", "stage.keep_time": 60.0}),
 ]
 
