@@ -1,26 +1,39 @@
 """When the catalogue runs out (issue 24): an effect in no catalogue, from the generator
 that shares no code with the package (test/generator.py), is not named; the closest
-candidates and what remains are.
+candidates and what remains are. Written as a plugin package of its own (the README's
+effect with memory), the same effect runs in the simulator and is named, the model
+adequate and its parameters right.
 
 Data: test/generator.py, 8 mm at 1 mm/s, a tactile array whose elastomer creeps (each cell reads 70 % of
 the pressure at once and 30 % through a first-order lag of 3 s: a sensor with memory)."""
 
+import importlib
 import json
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rheo_ros.app.analyze import analyze
 from rheo_ros.app.cli import format_analysis
+from rheo_ros.config.setup import Setup, check_params
+from rheo_ros.models.effects import catalogue, unregister_effect
+from rheo_ros.rig.simulator import Simulator, simulate_clean, simulate_run
 
 
 @pytest.fixture(scope="module")
 def lagging(tmp_path_factory):
     from generator import Effects, Profile, generate
 
+    assert "sensor_lag" not in catalogue()   # the plugin below is not installed yet
     root = tmp_path_factory.mktemp("lag")
     bag = generate(root / "bag", effects=Effects(sensor_lag=(3.0, 0.3)), profile=Profile(keep_time=15.0,
                                                                                            release_time=25.0, velocity=1e-3, depth=8e-3), seed=2)
-    return analyze(bag, workers=1).to_json(), json.loads((root / "bag.truth.json").read_text())
+    return analyze(bag, workers=1).to_json(), json.loads((root / "bag.truth.json").read_text()), bag
 
 
 def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(lagging):
@@ -28,7 +41,7 @@ def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(laggi
     0.063 N) and the model still misfits (4.2-6.3 x the noise per segment): no missing
     effect, explained false, adhesion listed as the closest, the final word in the
     evidence. (Before issue 24 the JSON said adhesion is missing.)"""
-    report, _ = lagging
+    report, _, _ = lagging
     d = report["diagnosis"]
     assert (d["missing_effect"], d["missing_effects"], d["explained"], d["adequate"]) == (None, [], False, False)
     assert d["closest"] and [m["name"] for m in report["models"]][1:] == [
@@ -39,7 +52,7 @@ def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(laggi
 def test_what_remains_says_where_the_misfit_sits(lagging):
     """``remaining``: every phase of the push and every segment misfit with the closest
     model; each cell's ratio above 1 (the misfit limit)."""
-    report, _ = lagging
+    report, _, _ = lagging
     rest = report["diagnosis"]["remaining"]
     assert {"pull", "keep", "release"} <= set(rest["phases"])
     assert set(rest["segments"]) == {"P1", "P2", "P3", "P4", "P5"}
@@ -51,7 +64,7 @@ def test_what_remains_has_the_lags_time_in_its_shape(lagging):
     """The total force's residual in the pull and the keep is a decay whose time is the
     sensor's lag (3 s; measured 2.9 s in the pull, 2.2 s in the keep, 72-78 x the force
     noise): the hint for a user to write a sensor with memory."""
-    report, truth = lagging
+    report, truth, _ = lagging
     shapes = report["diagnosis"]["remaining"]["shapes"]
     lag = truth["effects"]["sensor_lag"][0]
     for phase in ("pull", "keep"):
@@ -60,3 +73,86 @@ def test_what_remains_has_the_lags_time_in_its_shape(lagging):
         assert abs(shapes[phase]["size"]) > 10
     text = format_analysis(report)   # rheo analyze's text says it too
     assert "What remains (in " in text and "pull: decay of " in text
+
+
+def readme_block(language: str, marker: str) -> str:
+    """The README's ``language`` block that holds ``marker``."""
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    blocks = re.findall(rf"^( *)```{language}\n(.*?)^\1```", text, flags=re.S | re.M)
+    [code] = [textwrap.dedent(body) for _, body in blocks if marker in body]
+    return code
+
+
+@pytest.fixture(scope="module")
+def lag_plugin(tmp_path_factory):
+    """The README's effect with memory as a package of its own (the README's code and
+    entry point), installed by pip into a temporary folder and found through the
+    ``rheo_ros.effects`` entry-point group, not imported by the test."""
+    root = tmp_path_factory.mktemp("plugin")
+    src = root / "src"
+    src.mkdir()
+    (src / "rheo_sensor_lag.py").write_text(readme_block("python", "class SensorLag"))
+    (src / "pyproject.toml").write_text(
+        '[build-system]\nrequires = ["setuptools"]\nbuild-backend = "setuptools.build_meta"\n\n'
+        '[project]\nname = "rheo-sensor-lag"\nversion = "0.1.0"\n\n'
+        + readme_block("toml", "rheo_ros.effects") + '\n[tool.setuptools]\npy-modules = ["rheo_sensor_lag"]\n')
+    site = root / "site"
+    run = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+                          "--no-index", "--target", str(site), str(src)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr[-2000:]
+    sys.path.insert(0, str(site))
+    importlib.invalidate_caches()
+    try:
+        assert "sensor_lag" in catalogue()
+        yield
+    finally:
+        sys.path.remove(str(site))
+        unregister_effect("sensor_lag")
+        sys.modules.pop("rheo_sensor_lag", None)
+
+
+def test_an_effect_with_memory_runs_in_the_streaming_simulator_as_in_the_whole_run(lag_plugin):
+    """The simulator node steps sample by sample; ``rheo simulate`` runs the whole
+    profile. With the README's lag (memory: the whole history) both give the same images
+    (measured: identical), and the lag is there: at the pull's end the total force falls
+    short of the lag-free run's by share x slope x time x (1 - e^(-pull/time)), the lag of
+    a ramp (measured within 1 % of it; asserted within 5 %: the force is not quite a ramp)."""
+    lag = {"effects.sensor_lag.time": 1.0, "effects.sensor_lag.share": 0.3}
+    base = {"stage.keep_time": 3.0, "stage.release_time": 3.0, "simulator.refine": 2}
+    setup = Setup(check_params({**base, **lag, "simulator.effects": ["sensor_lag"]}))
+    assert setup.model().memory == np.inf
+    whole = simulate_run(setup, seed=4)
+    node = Simulator(setup, seed=4)
+    frames = [f for t, d in zip(whole.stage_t, whole.stage_depth) for f in node.step(float(t), float(d))]
+    streamed = np.array([f.data for f in frames if f.kind == "tactile"])
+    count = setup.params["tactile.resolution"]
+    assert np.abs(streamed - whole.tactile).max() <= count and np.mean(streamed != whole.tactile) <= 1e-3
+
+    lagged = simulate_clean(setup)
+    free = simulate_clean(Setup(check_params({**base, "simulator.effects": [""]})))
+    profile = setup.profile
+    end = np.searchsorted(free.tactile_t, profile.t_pull_end) - 1     # the last sample of the pull
+    total, total_lagged = free.force.sum(axis=1), lagged.force.sum(axis=1)
+    dt = free.tactile_t[1] - free.tactile_t[0]
+    slope = (total[end] - total[end - 5]) / (5 * dt)
+    pull = free.tactile_t[end] - free.tactile_t[np.flatnonzero(total > 0)[0]]
+    expected = 0.3 * slope * 1.0 * (1 - np.exp(-pull / 1.0))
+    assert total[end] - total_lagged[end] == pytest.approx(expected, rel=0.05)
+
+
+def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_parameters_right(lagging, lag_plugin):
+    """The same generator bag with the README's lag installed as a plugin: the diagnosis
+    names sensor_lag, the model is adequate and explained, and the lag's time and share
+    and E, c1, c2 come back within 3 std of the generator's truth (measured: within 0.53
+    std, the time 0.06 % off; with every reading's time given to the lag - before, the fit
+    gave it only the readings away from the phase boundaries and the share came out 1.6 %,
+    15 std, high)."""
+    _, truth, bag = lagging
+    report = analyze(bag, workers=1).to_json()
+    d = report["diagnosis"]
+    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["sensor_lag"], True, True), d["evidence"]
+    final = report["models"][-1]
+    expected = {"sensor_lag.time": truth["effects"]["sensor_lag"][0], "sensor_lag.share": truth["effects"]["sensor_lag"][1],
+                **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
+    for name, value in expected.items():
+        assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])

@@ -232,11 +232,12 @@ class QuasiStaticFE:
         spring = model.voigt_spring
         r = (respond(model.rheology(), stage_program(profile), t[order]) if spring is None else
              respond_voigt_spring(model.rheology(), spring, self.mesh.height, stage_program(profile), t[order]))
-        stress, depth = np.empty_like(t), np.empty_like(t)
-        stress[order], depth[order] = r.stress, r.strain
-        nf, nm = len(force_t), len(marker_t)
+        scaled, depth = np.empty_like(t), np.empty_like(t)
         with np.errstate(over="ignore", invalid="ignore"):   # a fit's trial law may overflow: the fit handles it
-            scaled = stress * model.stress_scale(depth / self.mesh.height)
+            # In time order: a stress effect with memory reads the strain's past.
+            scaled[order] = r.stress * model.stress_scale(r.strain / self.mesh.height)
+        depth[order] = r.strain
+        nf, nm = len(force_t), len(marker_t)
         release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
         force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
         disp = depth[nf : nf + nm, None, None] * shape.displacement[None]

@@ -130,10 +130,13 @@ class WholeRecordProblem:
 
     def predict(self, params: dict[str, float]) -> Prediction:
         model = self.model.with_parameters({k: v for k, v in params.items() if k in self.model.parameters})
-        return self.forward.predict(
-            model, params["gamma"], self.profile, self.record.force_t[self._use] - params.get("tactile_delay", 0.0),
-            self.record.marker_t - params.get("marker_delay", 0.0),
-        )
+        # An effect with memory reads every sample's past: it gets every reading's time,
+        # not only the fitted ones (a gap at a phase boundary would hold its input there).
+        every = bool(model.memory)
+        force_t = self.record.force_t if every else self.record.force_t[self._use]
+        pred = self.forward.predict(model, params["gamma"], self.profile, force_t - params.get("tactile_delay", 0.0),
+                                    self.record.marker_t - params.get("marker_delay", 0.0))
+        return Prediction(pred.force[self._use], pred.displacement) if every else pred
 
     def residuals(self, params: dict[str, float]) -> np.ndarray:
         p = self.predict(params)

@@ -7,13 +7,21 @@ a hook, so the base elements and the FE model never learn about it:
 
 - ``material(element)``: a structural change of the rheology (an extra arm);
 - ``stress_scale(strain)``: a factor on the specimen's stress that depends on its
-  current nominal strain (a nonlinear elastic response);
+  nominal strain (a nonlinear elastic response);
 - ``voigt_spring(strain)``: the base's Voigt spring made nonlinear (its stress per
   unit E at its own nominal strain); the response is then integrated numerically
   (``response.respond_voigt_spring``), and the FE simulator, linear, does not take it;
 - ``measured_force(t, force, release)``: what reaches the sensor besides the
   specimen's stress (adhesion, drift), given when the stage let go (``Release``).
-  It needs no history, so a streaming simulator calls it sample by sample.
+
+``stress_scale`` and ``measured_force`` get samples in time order (``t`` increasing)
+and return one row per sample. An effect without memory (``memory`` 0, the default)
+must give each row from that sample alone: the streaming simulator then calls it
+with the current sample only. An effect whose reading or stress depends on its past
+(a sensor's lag, hysteresis, damage) says how far back in ``memory`` (seconds,
+``math.inf``: the whole history); a row may then depend on the rows before it, and
+the streaming simulator calls the hooks with that stretch of its history (its cost
+per sample grows with it), the fit with the whole record.
 
 An effect is a family of forms (a drift that is a line or that settles; one
 relaxation arm or two): every form of a family shares its ``id`` and says which it is
@@ -143,6 +151,12 @@ class Effect:
         """``force``: (T, nodes) in N at times ``t`` (s) -> the nodal forces the sensor
         feels; ``release``: when the stage let go (None: not yet)."""
         return force
+
+    @property
+    def memory(self) -> float:
+        """Seconds of past samples a row of ``stress_scale`` or ``measured_force`` depends
+        on (0: none; ``math.inf``: all of them)."""
+        return 0.0
 
 
 _REGISTRY: dict[str, dict[str, type[Effect]]] = {}   # id -> form -> class, the default first
@@ -635,6 +649,11 @@ class Model:
         for effect in self.effects:
             force = effect.measured_force(t, force, release)
         return force
+
+    @property
+    def memory(self) -> float:
+        """The longest past (s) any of its effects' readings depends on (``Effect.memory``)."""
+        return max((e.memory for e in self.effects), default=0.0)
 
     def felt_force(self, t: np.ndarray, force: np.ndarray, strain: np.ndarray, contact: np.ndarray) -> np.ndarray:
         """What the sensor feels over a sampled run: the linear nodal ``force`` (T, nodes)

@@ -11,6 +11,7 @@ effects in each, so their outputs agree; the one noise model is the sensors'
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,6 +60,10 @@ class Simulator:
         self.last: tuple[float, float] | None = None   # last stage sample (t, depth)
         self.release: Release | None = None
         self._contact_force = np.zeros(self.mesh.cols)
+        # Effects with memory get the stretch of the run they depend on, step by step as
+        # ``simulate_clean`` has it: (t, linear bottom forces, nominal strain) per step.
+        self.memory = self.model.memory
+        self._history: deque[tuple[float, np.ndarray, float]] = deque()
 
     @property
     def t(self) -> float:
@@ -66,7 +71,29 @@ class Simulator:
 
     def specimen_force(self) -> np.ndarray:
         """Bottom nodal forces (N) the specimen's stress exerts now."""
-        return self.fe.bottom_force() * float(self.model.stress_scale(np.array(self.fe.strain())))
+        if not self.memory:
+            return self.fe.bottom_force() * float(self.model.stress_scale(np.array(self.fe.strain())))
+        _, force, strain = self._past()
+        return force[-1] * self.model.stress_scale(strain)[-1]
+
+    def _past(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The steps the effects' memory reaches back to: times (s), linear bottom forces
+        (T, nodes) N and nominal strains (T,)."""
+        t, force, strain = zip(*self._history)
+        return np.array(t), np.array(force), np.array(strain)
+
+    def _felt_force(self) -> np.ndarray:
+        """The bottom nodal forces (N) the sensor feels now (the effects' hooks)."""
+        if not self.memory:
+            return self.model.measured_force(np.array([self.t]), self.specimen_force()[None], self.release)[0]
+        t, force, strain = self._past()
+        return self.model.measured_force(t, force * self.model.stress_scale(strain)[:, None], self.release)[-1]
+
+    def _remember(self) -> None:
+        if self.memory:
+            self._history.append((self.t, self.fe.bottom_force(), float(self.fe.strain())))
+            while self._history[0][0] < self.t - self.memory:
+                self._history.popleft()
 
     def step(self, t: float, depth: float) -> list[Frame]:
         """Take a stage sample (``t`` s from the run's start, ``depth`` m); return the
@@ -75,6 +102,7 @@ class Simulator:
         if self.last is None:
             self.last, self.k = (t, depth), 0
             self.fe.reset(0.0)
+            self._remember()
             frames += self._frames()
             return frames
         t0, d0 = self.last
@@ -95,10 +123,14 @@ class Simulator:
         if self.last is not None:
             self.fe.reset(self.t)
         self.release, self._contact_force = None, np.zeros(self.mesh.cols)
+        self._history.clear()   # the old block's past is not the new one's
+        if self.last is not None:
+            self._remember()
 
     def _advance(self, t: float, depth: float) -> None:
         held = self.fe.contact == "held"
         self.fe.advance(t, depth)
+        self._remember()
         if held and self.fe.contact == "free" and self.release is None:
             self.release = Release(t, self._contact_force)  # force at the last step in contact
         if self.fe.contact == "held":
@@ -107,7 +139,7 @@ class Simulator:
     def _frames(self) -> list[Frame]:
         out = []
         if self.k % self.every["tactile"] == 0:
-            felt = self.model.measured_force(np.array([self.t]), self.specimen_force()[None], self.release)
+            felt = self._felt_force()[None]
             out.append(Frame("tactile", self.t, self.tactile.read(self.tactile.pressure(felt), self.tactile_rng)[0]))
         if self.k % self.every["markers"] == 0:
             positions = self.mesh.nodes + self.fe.displacement()
