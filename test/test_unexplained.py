@@ -22,6 +22,7 @@ from rheo_ros.app.analyze import analyze
 from rheo_ros.app.cli import format_analysis
 from rheo_ros.config.setup import Setup, check_params
 from rheo_ros.models.effects import catalogue, unregister_effect
+from rheo_ros.reports.html import render_report
 from rheo_ros.rig.simulator import Simulator, simulate_clean, simulate_run
 
 
@@ -33,7 +34,8 @@ def lagging(tmp_path_factory):
     root = tmp_path_factory.mktemp("lag")
     bag = generate(root / "bag", effects=Effects(sensor_lag=(3.0, 0.3)), profile=Profile(keep_time=15.0,
                                                                                            release_time=25.0, velocity=1e-3, depth=8e-3), seed=2)
-    return analyze(bag, workers=1).to_json(), json.loads((root / "bag.truth.json").read_text()), bag
+    result = analyze(bag, workers=1)
+    return result.to_json(), json.loads((root / "bag.truth.json").read_text()), bag, result
 
 
 def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(lagging):
@@ -41,7 +43,7 @@ def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(laggi
     0.063 N) and the model still misfits (4.2-6.3 x the noise per segment): no missing
     effect, explained false, adhesion listed as the closest, the final word in the
     evidence. (Before issue 24 the JSON said adhesion is missing.)"""
-    report, _, _ = lagging
+    report, _, _, _ = lagging
     d = report["diagnosis"]
     assert (d["missing_effect"], d["missing_effects"], d["explained"], d["adequate"]) == (None, [], False, False)
     assert d["closest"] and [m["name"] for m in report["models"]][1:] == [
@@ -52,7 +54,7 @@ def test_an_effect_in_no_catalogue_is_not_named_and_the_closest_are_listed(laggi
 def test_what_remains_says_where_the_misfit_sits(lagging):
     """``remaining``: every phase of the push and every segment misfit with the closest
     model; each cell's ratio above 1 (the misfit limit)."""
-    report, _, _ = lagging
+    report, _, _, _ = lagging
     rest = report["diagnosis"]["remaining"]
     assert {"pull", "keep", "release"} <= set(rest["phases"])
     assert set(rest["segments"]) == {"P1", "P2", "P3", "P4", "P5"}
@@ -63,16 +65,38 @@ def test_what_remains_says_where_the_misfit_sits(lagging):
 def test_what_remains_has_the_lags_time_in_its_shape(lagging):
     """The total force's residual in the pull and the keep is a decay whose time is the
     sensor's lag (3 s; measured 2.9 s in the pull, 2.2 s in the keep, 72-78 x the force
-    noise): the hint for a user to write a sensor with memory."""
-    report, truth, _ = lagging
+    noise): the hint for a user to write a sensor with memory. In the release a pulse
+    (measured 2.4 s in, rising and falling over 1.9 s, -46 x the noise)."""
+    report, truth, _, _ = lagging
     shapes = report["diagnosis"]["remaining"]["shapes"]
     lag = truth["effects"]["sensor_lag"][0]
     for phase in ("pull", "keep"):
         assert shapes[phase]["shape"] == "decay", (phase, shapes[phase])
         assert 0.5 * lag < shapes[phase]["tau"] < 1.5 * lag, (phase, shapes[phase]["tau"])
         assert abs(shapes[phase]["size"]) > 10
+    # The release: the closest model's own recovery against the lagging reading, a pulse
+    # that comes back to zero within the phase.
+    assert shapes["release"]["shape"] == "pulse" and abs(shapes["release"]["size"]) > 10, shapes["release"]
     text = format_analysis(report)   # rheo analyze's text says it too
     assert "What remains (in " in text and "pull: decay of " in text
+
+
+def test_the_report_shows_what_remains_with_the_fitted_shape_over_it(lagging):
+    """The report's "What remains" section: the sentence of the text, a row per phase
+    with the JSON's shape, size and time, and the figure with each shape drawn over the
+    residual (its SVG group per phase)."""
+    report, _, _, result = lagging
+    page = render_report(result)
+    shapes = report["diagnosis"]["remaining"]["shapes"]
+    assert '<p id="remaining-text">What remains (in ' in page
+    for phase, v in shapes.items():
+        row = re.search(rf'<tr data-phase="{phase}" data-shape="{v["shape"]}">.*?</tr>', page)
+        assert row, phase
+        assert f'data-value="{v["size"]!r}"' in row.group(0)
+        if v["tau"] is not None:
+            assert f'data-value="{v["tau"]!r}"' in row.group(0)
+        assert f'id="remaining-shape-{phase}"' in page
+    assert '<figure class="remaining" id="remaining">' in page
 
 
 def readme_block(language: str, marker: str) -> str:
@@ -147,7 +171,7 @@ def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_para
     std, the time 0.06 % off; with every reading's time given to the lag - before, the fit
     gave it only the readings away from the phase boundaries and the share came out 1.6 %,
     15 std, high)."""
-    _, truth, bag = lagging
+    _, truth, bag, _ = lagging
     report = analyze(bag, workers=1).to_json()
     d = report["diagnosis"]
     assert (d["missing_effects"], d["explained"], d["adequate"]) == (["sensor_lag"], True, True), d["evidence"]

@@ -174,11 +174,9 @@ def format_analysis(report: dict[str, Any]) -> str:
     lines.append(report["diagnosis"]["evidence"])
     rest = report["diagnosis"].get("remaining")
     if rest:
-        where = "the force alone" if rest["force_only"] else "the markers alone" if rest["markers_only"] else \
-            "the force and the markers"
-        lines.append(f"What remains (in {where}; total force, noise {rest['force_noise']:.3g} N): " + "; ".join(
-            f"{phase}: {v['shape']}" + (f" of {v['tau']:.3g} s" if v["tau"] else "") + f", {v['size']:+.3g} x noise"
-            for phase, v in rest["shapes"].items()))
+        from rheo_ros.diagnosis.remaining import describe
+
+        lines.append(describe(rest))
     return "\n".join(lines)
 
 

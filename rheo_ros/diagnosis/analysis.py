@@ -157,6 +157,11 @@ class Analysis:
         return pool_experiments([e.final.estimate for e in self.experiments],
                                 new_objects={k for k, e in enumerate(self.experiments, 1) if e.object == "new"})
 
+    def what_remains(self) -> dict[str, Any] | None:
+        """What the final model leaves (``remaining.remaining``) where the catalogue does not
+        explain these data (``Verdict.explained`` false); None otherwise."""
+        return remaining(self.final, self.record) if Verdict.of(self.diagnoses).explained is False else None
+
     def _push_json(self) -> dict[str, Any]:
         verdict = Verdict.of(self.diagnoses)
         # Not diagnosed (--no-discover): adequate is unknown, null.
@@ -168,7 +173,7 @@ class Analysis:
         diagnosis["explained"] = verdict.explained
         diagnosis["closest"] = list(verdict.closest)
         diagnosis["degenerate"] = list(verdict.degenerate)
-        diagnosis["remaining"] = remaining(self.final, self.record) if verdict.explained is False else None
+        diagnosis["remaining"] = self.what_remains()
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
         diagnosis["evidence"] = verdict.evidence if self.diagnoses else "not diagnosed (--no-discover)"
         diagnosis["steps"] = [d.to_json() | {"model": d.model} for d in self.diagnoses]

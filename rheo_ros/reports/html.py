@@ -2,7 +2,8 @@
 
 The page needs no server, fetches nothing and runs no script: the figures are
 matplotlib SVG inlined in the HTML, the style sheet is inline too. It states the
-verdict first, then the phases, the diagnosis step by step, how the force error falls
+verdict first, then the phases, the diagnosis step by step, what remains where no effect
+explains the data, how the force error falls
 from model to model, each model's force against the measurement with its residual, the
 marker mesh measured against the final model, and every parameter with its std.
 
@@ -16,6 +17,11 @@ what a person sees:
   each with ``data-value``, the float's ``repr`` (empty for no std, ``inf``/``nan``
   for an undetermined one); the BIC and RMS rows are ``<tr data-stat="bic">`` and
   ``<tr data-stat="rmse_force">``;
+- where the catalogue does not explain the data, the section "What remains": its
+  sentence ``<p id="remaining-text">``, each phase's shape a row ``<tr data-phase=...
+  data-shape=...>`` of ``table#remaining-shapes`` (``td.size``, ``td.tau`` with
+  ``data-value``), the figure ``<figure id="remaining">`` with each fitted shape the
+  SVG group ``remaining-shape-<phase>``;
 - each model's force figure is ``<figure class="force" id="force-<k>" data-model=...>``
   (``k`` from 0, the order of ``Analysis.models``); its residual axes are the SVG group
   ``force<k>-residual-axes`` with ``data-xlim="<t0> <t1>"`` (s, the limits it was drawn
@@ -46,6 +52,8 @@ from matplotlib.figure import Figure
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Verdict
 from rheo_ros.diagnosis.fits import ModelFit
+from rheo_ros.diagnosis.remaining import describe as describe_remaining
+from rheo_ros.diagnosis.remaining import shape_curve
 from rheo_ros.experiment import PUSH_PHASES, Phase
 from rheo_ros.identification.fit import away_from_boundaries
 from rheo_ros.identification.pipeline import contact_depth
@@ -100,6 +108,7 @@ def render_report(result: Analysis) -> str:
         _phases_section(result),
         _sensor_section(result),
         _diagnosis_section(result),
+        _remaining_section(result),
         _error_section(result),
         _force_section(result),
         _mesh_section(result),
@@ -207,6 +216,57 @@ def _diagnosis_section(result: Analysis) -> str:
     steps = "".join(f"<li>{html.escape(d.evidence)}</li>"
                     for d in result.diagnoses)
     return f'<section><h2>Diagnosis</h2>{added}<ol class="steps">{steps}</ol></section>'
+
+
+def _remaining_section(result: Analysis) -> str:
+    """Where the catalogue does not explain the data: what the final model leaves, its
+    shape in each phase fitted over it, the hint for the effect to write."""
+    rest = result.what_remains()
+    if rest is None:
+        return ""
+    rows = "".join(
+        f'<tr data-phase="{html.escape(phase)}" data-shape="{html.escape(v["shape"])}"><td>{html.escape(phase)}</td>'
+        f'<td>{html.escape(v["shape"])}</td>{_value_cell(v["size"], "+.3g", "size")}'
+        + ('<td class="tau" data-value="">-</td>' if v["tau"] is None else _value_cell(v["tau"], ".3g", "tau"))
+        + "</tr>" for phase, v in rest["shapes"].items())
+    misfits = ", ".join(f"{c['signal']} in the {c['phase']} ({c['ratio']:.3g} x the noise)" for c in rest["misfits"])
+    caption = (f"The total bottom force measured minus {result.final.name}, the final model: what a missing "
+               "effect must add. Over each phase, the shape fitted to it (a step, a ramp or a decay with its "
+               "own time, the lowest BIC); the band is two noise std wide.")
+    return ('<section><h2>What remains</h2>'
+            f'<p id="remaining-text">{html.escape(describe_remaining(rest))}</p>'
+            f"<p>Misfitting: {html.escape(misfits) or 'none'}.</p>"
+            '<table id="remaining-shapes"><tr><th>phase</th><th>shape</th><th>size (x noise)</th>'
+            f"<th>time (s)</th></tr>{rows}</table>"
+            + _figure(_remaining_svg(result, rest), caption, 'class="remaining" id="remaining"')
+            + "</section>")
+
+
+def _remaining_svg(result: Analysis, rest: dict) -> str:
+    record = result.record
+    t = record.force_t
+    residual = record.force.sum(axis=1) - result.final.prediction_total
+    steady = away_from_boundaries(t, record.profile())
+    noise = rest["force_noise"]
+    with _new_figure(9, 3.4) as fig:
+        ax = fig.subplots()
+        _shade_phases(ax, record.profile().phases, label=True)
+        ax.axhspan(-2 * noise, 2 * noise, color="#adb5bd", alpha=0.35, lw=0, label="±2 σ noise")
+        ax.plot(t, residual, color=MEASURED_COLOUR, lw=0.6, label="measured - model")
+        for n, (phase, shape) in enumerate(rest["shapes"].items()):
+            span = next(p for p in record.profile().phases if p.name == phase)
+            inside = (t > span.t_start) & (t < span.t_end)
+            label = "fitted shape" if n == 0 else None
+            ax.plot(t[inside], shape_curve(shape, t[inside]), color=MODEL_COLOUR, lw=1.6, label=label,
+                    gid=f"shape-{phase}")
+        ax.axhline(0.0, color="#868e96", lw=0.6)
+        if steady.any():
+            ax.set_ylim(*(1.15 * np.array([min(residual[steady].min(), -3 * noise),
+                                           max(residual[steady].max(), 3 * noise)])))
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("measured - model (N)")
+        ax.legend(fontsize=8, loc="upper right")
+        return _svg(fig, "remaining")
 
 
 def _error_section(result: Analysis) -> str:
