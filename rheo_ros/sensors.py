@@ -32,7 +32,10 @@ class DeadBand:
 
     force: np.ndarray
     cells: np.ndarray
-    saturation: np.ndarray | float = math.inf   # N per segment: every cell at its largest reading
+    saturation: np.ndarray | float = math.inf   # N per segment: its cells at their largest reading
+    # Share of a segment's cells that clip at ``saturation``: 1 for the whole array's
+    # saturation, 1 / cells where one cell saturates alone (the others read on above it).
+    clipping: np.ndarray | float = 1.0
 
     def threshold(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the smallest live segment force, given each segment's noise std
@@ -56,9 +59,38 @@ class DeadBand:
         """What the segments read of noise-free forces (T, nodes) in N, to first order:
         the force, or zero below the dead band (cells at the threshold) and for tension.
         A model compared with readings goes through it first: where the specimen has let
-        go, a force sinking below the dead band reads zero, not its small true value."""
+        go, a force sinking below the dead band reads zero, not its small true value. Above
+        ``saturation`` the clipping cells stop rising (all of them: the reading stays there)."""
         force = np.asarray(force)
-        return np.minimum(np.where(force >= self.force, force, 0.0), self.saturation)
+        read = np.where(force >= self.force, force, 0.0)
+        return read - self.clipping * np.maximum(read - self.saturation, 0.0)
+
+
+@dataclass(frozen=True)
+class CellFault:
+    """A tactile cell that does not read its load, as the data show it (``read_sensor``).
+
+    ``kind``: ``dead``, one reading ``value`` (Pa) throughout; ``saturated``, clipped
+    alone at ``value`` (Pa). ``peak`` (Pa): where the other cells of its column (of its
+    segment, for a one-row array) peak, the load it missed.
+    """
+
+    row: int
+    col: int
+    kind: str
+    value: float
+    peak: float
+
+    def warning(self) -> str:
+        if self.kind == "dead":
+            return (f"tactile cell (row {self.row}, col {self.col}) reads {self.value:g} throughout while the other "
+                    f"cells of its column peak at {self.peak:.4g} Pa: left out, its segment read from its other cells")
+        return (f"tactile cell (row {self.row}, col {self.col}) saturates alone at {self.value:.4g} Pa while the other "
+                f"cells of its column peak at {self.peak:.4g} Pa: its segment's readings from there up are not live "
+                "(they bound the force from below)")
+
+    def to_json(self) -> dict:
+        return {"row": self.row, "col": self.col, "kind": self.kind, "value": self.value, "peak": self.peak}
 
 
 @dataclass(frozen=True)
@@ -82,6 +114,7 @@ class TactileArray:
     resolution: float = 10.0
     threshold: float = 300.0
     saturation: float = math.inf   # Pa: the largest reading a cell gives
+    faults: tuple[CellFault, ...] = ()   # cells that do not read their load (read_sensor)
 
     @cached_property
     def segment(self) -> np.ndarray:
@@ -106,10 +139,17 @@ class TactileArray:
     def dead_band(self) -> DeadBand | None:
         """Where the segments read their force plus zero-mean noise; None for a linear
         cell (no dead band, no clipping: every reading is)."""
-        if self.threshold == LINEAR and self.saturation == math.inf:
+        lone = [f for f in self.faults if f.kind == "saturated"]
+        if self.threshold == LINEAR and self.saturation == math.inf and not lone:
             return None
         cells = self.cells_per_segment
-        return DeadBand(self.threshold * cells * self.cell_area, cells, self.saturation * cells * self.cell_area)
+        saturation = np.full(self.nodes, self.saturation) * cells * self.cell_area
+        clipping = np.ones(self.nodes)
+        for fault in lone:   # its segment stops reading its force where that cell clips (even load)
+            j = self.segment[fault.col]
+            saturation[j] = min(saturation[j], fault.value * cells[j] * self.cell_area)
+            clipping[j] = 1.0 / cells[j]
+        return DeadBand(self.threshold * cells * self.cell_area, cells, saturation, clipping)
 
     @property
     def cells_per_segment(self) -> np.ndarray:
@@ -148,6 +188,24 @@ class TactileArray:
         for node in range(self.nodes):
             out[:, node] = per_col[:, self.segment == node].sum(axis=1)
         return out
+
+    def segment_forces(self, sums: np.ndarray) -> np.ndarray:
+        """The segment forces (T, nodes) in N of segment sums (``nodal_forces``) with the
+        dead cells left out: a dead cell's constant reading taken off and its segment's
+        other cells scaled up to the whole segment. Scaled, not a cell fewer: the forward
+        model integrates each segment over all its columns, and a nodal force is spread
+        evenly over its cells, so the remaining cells stand for the missing one (in the
+        plane FE the pressure varies along x within a segment: first order there)."""
+        dead = [f for f in self.faults if f.kind == "dead"]
+        if not dead:
+            return sums
+        cells = self.cells_per_segment.astype(float)
+        stuck, left = np.zeros(self.nodes), cells.copy()
+        for fault in dead:
+            j = self.segment[fault.col]
+            stuck[j] += fault.value * self.cell_area
+            left[j] -= 1
+        return (np.asarray(sums, float) - stuck) * (cells / np.maximum(left, 1.0))
 
 
 @dataclass(frozen=True)
@@ -205,6 +263,11 @@ class TactileReadout:
     at_largest: int = 0        # frames in which some cell reads ``largest``
     distinct: np.ndarray = field(default_factory=lambda: np.empty(0))
     overflow: bool = False
+    # Per cell (rows, cols), None before the first frame: its lowest and highest reading
+    # and the frames in which it reads its highest (a dead or a lone saturated cell).
+    cell_low: np.ndarray | None = None
+    cell_high: np.ndarray | None = None
+    cell_at_high: np.ndarray | None = None
 
     def add(self, images: np.ndarray) -> None:
         """Frames (..., rows, cols) of readings in Pa."""
@@ -212,6 +275,7 @@ class TactileReadout:
         v = images.ravel()
         if v.size == 0:
             return
+        self._add_cells(images.reshape(-1, *images.shape[-2:]))
         self.readings += v.size
         self.zeros += int(np.count_nonzero(v == 0.0))
         self.negatives += int(np.count_nonzero(v < 0.0))
@@ -228,6 +292,22 @@ class TactileReadout:
             self.distinct = np.union1d(self.distinct, v[v != 0.0])
             if self.distinct.size > MAX_DISTINCT:
                 self.overflow, self.distinct = True, np.empty(0)
+
+    def _add_cells(self, frames: np.ndarray) -> None:
+        low, high = frames.min(axis=0), frames.max(axis=0)
+        at_high = np.count_nonzero(frames == high, axis=0)
+        if self.cell_high is None:
+            self.cell_low, self.cell_high, self.cell_at_high = low, high, at_high
+            return
+        self.cell_low = np.minimum(self.cell_low, low)
+        self.cell_at_high = np.where(high > self.cell_high, at_high,
+                                     self.cell_at_high + np.where(high == self.cell_high, at_high, 0))
+        self.cell_high = np.maximum(self.cell_high, high)
+
+    @property
+    def frames(self) -> int:
+        """Frames added."""
+        return 0 if self.cell_high is None else self.readings // self.cell_high.size
 
     @property
     def resolution(self) -> float | None:
@@ -259,13 +339,17 @@ class SensorReading:
         source: per field (``tactile.threshold``, ``tactile.resolution``,
             ``tactile.noise``, ``markers.noise``) whether it came from the ``data`` or
             the ``parameters``.
-        warnings: one line per stated value the data contradict.
+        warnings: one line per stated value the data contradict, and per cell left out
+            (``tactile.faults``).
+        unreadable: why the tactile readings carry no force ("" when they do): no push
+            can be identified from them.
     """
 
     tactile: TactileArray
     marker_noise: float
     source: dict[str, str]
     warnings: tuple[str, ...] = ()
+    unreadable: str = ""
 
     @property
     def law(self) -> str:
@@ -283,7 +367,8 @@ class SensorReading:
             "law": self.law,
             "tactile": {"threshold": None if t.threshold == LINEAR else t.threshold,
                         "clipped_at_zero": t.threshold == 0.0, "resolution": t.resolution,
-                        "noise": _finite(t.noise), "saturation": _finite(t.saturation)},
+                        "noise": _finite(t.noise), "saturation": _finite(t.saturation),
+                        "faults": [f.to_json() for f in t.faults]},
             "markers": {"noise": _finite(self.marker_noise)},
             "source": dict(self.source),
             "warnings": list(self.warnings),
@@ -315,9 +400,8 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
     cells = stated.cells_per_segment
     to_cell = np.sqrt(cells) * stated.cell_area   # a segment's force std per cell std (Pa -> N)
 
-    frames = readout.readings / (stated.rows * stated.cols)
     saturation = math.inf
-    if readout.largest > 0 and readout.at_largest >= max(10, 0.01 * frames):
+    if readout.largest > 0 and _often(readout.at_largest, readout.frames):
         saturation = readout.largest
     unsaturated = forces < 0.9 * saturation * cells * stated.cell_area
 
@@ -373,9 +457,74 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
                             f"{marker_std:.3g} m")
     else:
         marker_std, source["markers.noise"] = stated_marker_noise, "parameters"
+    faults = cell_faults(stated, readout, threshold, noise, float(resolution), saturation)
+    warnings += [f.warning() for f in faults]
     tactile = replace(stated, threshold=threshold, resolution=float(resolution), noise=float(noise),
-                      saturation=saturation)
-    return SensorReading(tactile, float(marker_std), source, tuple(warnings))
+                      saturation=saturation, faults=faults)
+    return SensorReading(tactile, float(marker_std), source, tuple(warnings), unreadable(stated, readout))
+
+
+def unreadable(stated: TactileArray, readout: TactileReadout) -> str:
+    """Why these readings carry no force ("" when they may): none above zero, or none
+    above the parameters' dead band (stated or the default: the data cannot tell a
+    sensor with a lower band from readings in other units, kPa read as Pa, which would
+    scale every stiffness; so the parameters must say which). No readings (forces fed
+    without their images): nothing to judge."""
+    if not readout.readings:
+        return ""
+    if not readout.largest > 0:
+        return "every reading is 0 or below: the array read no load"
+    if stated.threshold > 0 and readout.largest < stated.threshold:
+        return (f"the largest reading is {readout.largest:.3g} Pa, under the {stated.threshold:g} Pa dead band "
+                "of the parameters (tactile.threshold): by them the array reads nothing, so no push can be "
+                "identified; kPa read as Pa? (a sensor with a lower dead band: state it in tactile.threshold)")
+    return ""
+
+
+FAULT_MARGIN = 6.0     # cell noise stds between a faulty cell and the load it missed
+FAULT_SHARE = 0.05     # ... and at least this share of that load (noise-free readings)
+
+
+def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, noise: float, resolution: float,
+                saturation: float) -> tuple[CellFault, ...]:
+    """The cells that do not read their load, each against the other cells of its
+    column (in the plane model the pressure is the same along z; across a segment's
+    columns it is not), of its segment for a one-row array: a cell with one reading
+    throughout (``dead``: 0, or stuck) where the others peak clearly above it and the
+    dead band, or one whose highest reading, met in many frames (as ``read_sensor``'s
+    saturation), is clearly under their peak and under the array's saturation
+    (``saturated`` alone). Clearly: ``FAULT_MARGIN`` cell noises, two steps and
+    ``FAULT_SHARE`` of the peak."""
+    if readout.cell_high is None:
+        return ()
+    low, high, at_high = readout.cell_low, readout.cell_high, readout.cell_at_high
+    rows, cols = high.shape
+    floor = max(threshold, 0.0)
+    faults = []
+    for r in range(rows):
+        for c in range(cols):
+            others = np.zeros((rows, cols), bool)
+            if rows > 1:
+                others[:, c] = True
+            else:
+                others[0, array.segment == array.segment[c]] = True
+            others[r, c] = False
+            if not others.any():
+                continue
+            peak = float(np.median(high[others]))
+            margin = max(FAULT_MARGIN * np.nan_to_num(noise), 2.0 * resolution, FAULT_SHARE * peak)
+            value = float(high[r, c])
+            if low[r, c] == value and peak > max(value, floor) + margin:
+                faults.append(CellFault(r, c, "dead", value, peak))
+            elif _often(at_high[r, c], readout.frames) and floor < value < saturation and peak > value + margin:
+                faults.append(CellFault(r, c, "saturated", value, peak))
+    return tuple(faults)
+
+
+def _often(count: int, frames: int) -> bool:
+    """A highest reading met in this many of ``frames`` is a ceiling (saturation): a
+    smooth load passes its peak once."""
+    return count >= max(10, 0.01 * frames)
 
 
 def _agrees(stated: float, shown: float) -> bool:

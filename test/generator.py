@@ -189,7 +189,8 @@ EFFECTS: dict[str, Effects] = {
 @dataclass(frozen=True)
 class Sensor:
     """Tactile cells and camera. Order of the cell's chain: noise, floor at zero,
-    dead band (readings under it read 0), quantisation, saturation."""
+    dead band (readings under it read 0), quantisation, saturation; then one faulty cell
+    (clipped alone, or dead) and the unit the array reports in."""
     name: str
     noise: float = 100.0            # Pa, Gaussian per cell and frame
     floor: bool = True              # a pressure cell reads no tension
@@ -197,6 +198,9 @@ class Sensor:
     resolution: float = 0.0         # Pa per step; 0: continuous
     saturation: float = math.inf    # Pa
     marker_noise: float = 2e-5      # m, Gaussian per coordinate
+    clipped_cell: tuple[int, int, float] | None = None   # (row, col, Pa): that cell alone saturates there
+    dead_cell: tuple[int, int, float] | None = None      # (row, col, value): that cell reads value throughout
+    unit: float = 1.0               # Pa per unit written: 1000 reports kPa (read as Pa: 1000 x too small)
 
 
 SENSORS: dict[str, Sensor] = {
@@ -449,6 +453,13 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     if sensor.resolution > 0:
         p = np.round(p / sensor.resolution) * sensor.resolution
     p = np.minimum(p, sensor.saturation)
+    if sensor.clipped_cell is not None:
+        r, c, top = sensor.clipped_cell
+        p[:, r, c] = np.minimum(p[:, r, c], top)
+    if sensor.dead_cell is not None:
+        r, c, value = sensor.dead_cell
+        p[:, r, c] = value
+    p = p / sensor.unit
 
     # Markers: u_y = -eps y (bottom on the sensor), u_x = gamma eps (x - W/2) (free sides).
     eps = simulate(material, effects, profile, mk_t, layout.height, fresh_material).eps

@@ -106,7 +106,23 @@ def shallow_push(tmp_path: Path) -> list[str]:
     return [str(tmp_path / "bag")]
 
 
+def array_in_kpa(tmp_path: Path) -> list[str]:
+    """The independent generator's default-like array (300 Pa dead band) reporting kPa,
+    read as Pa: every reading under the parameters' dead band (the largest 5.46). Before
+    issue 21: exit 0, E 33 Pa (1000 x low), no word of it."""
+    from dataclasses import replace
+
+    import generator as g
+
+    sensor = replace(g.SENSORS["default_like"], name="kPa", unit=1000.0)
+    return [str(g.generate(tmp_path / "bag", sensor=sensor, seed=1, profile=g.Profile(keep_time=15.0,
+                                                                                       release_time=20.0)))]
+
+
 CASES = {
+    "array in kPa": (array_in_kpa, r"bag: /tactile/pressure: the largest reading is 5.46 Pa, under the 300 Pa "
+                                   r"dead band of the parameters \(tactile.threshold\): by them the array reads "
+                                   r"nothing, so no push can be identified; kPa read as Pa\?"),
     "clock jump": (lambda tmp: [str(rewritten(tmp, "clock_jump"))],
                    r"bag: /\S+: header stamps jump back 30 s at 4\d\.\d+ s \(a clock jump"),
     "markers in mm": (lambda tmp: [str(rewritten(tmp, "markers_mm"))],

@@ -51,6 +51,7 @@ def test_each_sensor_law_is_read_from_the_readings(sensors, name, threshold, res
     camera = 1e-4 if name == "noisy_camera" else MARKER_NOISE
     assert s.marker_noise == pytest.approx(camera, rel=0.05)
     assert set(s.source.values()) == {"data"} and s.warnings == ()
+    assert s.tactile.faults == () and s.unreadable == ""   # no cell taken for a faulty one
 
 
 def test_noise_free_readings_are_read_as_noise_free(sensors):
@@ -60,6 +61,7 @@ def test_noise_free_readings_are_read_as_noise_free(sensors):
     s = sensors["noise_free"]
     assert s.tactile.noise == 0.0 and s.marker_noise == 0.0
     assert s.tactile.threshold == 300.0 and s.source["tactile.threshold"] == "parameters"
+    assert s.tactile.faults == ()   # every cell of a column reads alike: none is faulty
 
 
 def test_readings_below_zero_are_a_linear_cell():
@@ -86,6 +88,8 @@ def test_the_readout_is_the_same_frame_by_frame_as_whole(sensors):
     assert whole.readings == frames.readings and whole.zeros == frames.zeros
     assert whole.smallest_positive == frames.smallest_positive and whole.at_largest == frames.at_largest
     np.testing.assert_array_equal(whole.distinct, frames.distinct)
+    for cells in ("cell_low", "cell_high", "cell_at_high"):
+        np.testing.assert_array_equal(getattr(whole, cells), getattr(frames, cells))
     assert whole.resolution == frames.resolution == 50.0
 
 

@@ -30,6 +30,9 @@ from rheo_ros.identification.pipeline import (
     fit_from_starts,
     fit_starts,
     relaxation_unseen,
+    require_readings,
+    undetermined,
+    without_undetermined,
 )
 from rheo_ros.io.bag import bag_samples, read_params, require_bag
 from rheo_ros.io.errors import BagError
@@ -191,6 +194,7 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     if job.record is None:
         raise RecordError(f"{bag}: experiment {number}: too few samples to identify")
     record = replace(job.record, source=str(bag))
+    require_readings(record, TACTILE_TOPIC)   # before any work, naming the topic
     forward = setup.forward_model()
     noise = sensor_noise(record)
     warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
@@ -206,6 +210,8 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     closed = closed_form("release", record, forward)
     if closed.failed:
         warnings.append(f"closed form: {closed.estimate.method} reported in place of: {'; '.join(closed.failed)}")
+    open_ = undetermined(record, closed.estimate, setup.estimator_config())   # as the node reports it
+    warnings += [f"closed form: {name} not determined: {why}" for name, why in open_.items()]
     for warning in warnings:
         say(f"warning: {warning}")
     say("fitting three_element over the whole record")
@@ -224,8 +230,9 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     if discover_effects:
         found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say, workers=workers)
         models += found[1:]
-    return Analysis(str(bag), record, setup, forward, noise, closed.estimate, tuple(models), tuple(diagnoses),
-                    tuple(effects), tuple(warnings), object=job.object)
+    return Analysis(str(bag), record, setup, forward, noise, without_undetermined(closed.estimate, open_),
+                    tuple(models), tuple(diagnoses), tuple(effects), tuple(warnings), object=job.object,
+                    undetermined=open_)
 
 
 def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[OnlineDiagnosis] | None = None,

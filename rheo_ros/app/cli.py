@@ -160,8 +160,10 @@ def format_analysis(report: dict[str, Any]) -> str:
     est = report["estimate"]
     lines = [f"{report['bag']}: " + ", ".join(f"{p['name']} {p['t_start']:.2f}-{p['t_end']:.2f} s"
                                              for p in report["phases"])]
+    open_ = est.get("undetermined", {})
     lines.append("closed form (" + est["method"] + "): " + ", ".join(
-        f"{k} {_number(est[k])}" for k in ("E", "c1", "c2", "gamma")))
+        f"{k} not determined ({open_[k]})" if k in open_ else f"{k} {_number(est[k])}"
+        for k in ("E", "c1", "c2", "gamma")))
     lines.append(f"{'model':<52} {'RMS force (N)':>13} {'pull':>9} {'keep':>9} {'release':>9} {'BIC':>12}")
     for m in report["models"]:
         ph = m["rmse_by_phase"]

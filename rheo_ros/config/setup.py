@@ -237,20 +237,23 @@ class Setup:
         """
         readout = TactileReadout()
         readout.add(images)
-        forces = self.tactile.nodal_forces(images)
+        sensor, forces = self.sensor(readout, self.tactile.nodal_forces(images), markers)
         return Record(mesh=self.mesh, stage_t=stage_t, stage_depth=stage_depth, force_t=tactile_t,
-                      force=forces, marker_t=marker_t, markers=markers, source=source,
-                      sensor=self.sensor(readout, forces, markers))
+                      force=forces, marker_t=marker_t, markers=markers, source=source, sensor=sensor)
 
-    def sensor(self, readout: TactileReadout, forces: np.ndarray, markers: np.ndarray) -> SensorReading:
+    def sensor(self, readout: TactileReadout, sums: np.ndarray,
+               markers: np.ndarray) -> tuple[SensorReading, np.ndarray]:
         """The sensor as these readings show it (``sensors.read_sensor``): the tactile
-        readings' ``readout``, the segment forces (T, nodes) in N and the marker frames
-        (T, N, 2) they came with. A parameter counts as stated when it differs from its
-        default (a ROS node cannot tell a default from a value set to it)."""
+        readings' ``readout``, the segment sums (T, nodes) in N (``nodal_forces``) and the
+        marker frames (T, N, 2) they came with; and the segment forces a record holds, the
+        dead cells left out (``TactileArray.segment_forces``). A parameter counts as
+        stated when it differs from its default (a ROS node cannot tell a default from a
+        value set to it)."""
         given = frozenset(k for k in ("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise")
                           if self.params[k] != DEFAULTS[k])
         marker_std = difference_noise(markers)[0] if len(markers) else float("nan")
-        return read_sensor(self.tactile, readout, forces, marker_std, self.params["markers.noise"], given)
+        sensor = read_sensor(self.tactile, readout, sums, marker_std, self.params["markers.noise"], given)
+        return sensor, sensor.tactile.segment_forces(sums)
 
     @property
     def camera(self) -> MarkerCamera:

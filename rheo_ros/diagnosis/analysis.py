@@ -9,7 +9,7 @@ model fitted with its residuals, the verdicts, and the contract's JSON.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -35,7 +35,8 @@ class Analysis:
         record: its measurements; setup: its parameters, built; forward: the forward
             model every fit used.
         noise: the sensor noise the data show.
-        closed_form: the paper's identification (eq. 6, 7, 10 / 14-17).
+        closed_form: the paper's identification (eq. 6, 7, 10 / 14-17); NaN where the
+            data leave a parameter undetermined (``undetermined``: why).
         models: every model fitted, in the order tried: the base, the user's
             additions, then each effect the diagnosis added.
         diagnoses: the verdict on each model the loop judged, in order.
@@ -45,6 +46,8 @@ class Analysis:
             one (each push's record carries the pushes before it); empty for one push.
         object: what the robot said of this push's object (``/rheo/object``): new, same
             or "" (the data decide).
+        undetermined: the closed form's parameters the data leave open, each with why
+            (``pipeline.undetermined``, as the estimator node reports them).
     """
 
     bag: str
@@ -59,6 +62,7 @@ class Analysis:
     warnings: tuple[str, ...] = ()
     experiments: tuple[Analysis, ...] = ()
     object: str = ""
+    undetermined: dict[str, str] = field(default_factory=dict)
 
     @property
     def base(self) -> ModelFit:
@@ -181,8 +185,9 @@ class Analysis:
             "bag": self.bag,
             "phases": self.phases(),
             "estimate": {
-                **{k: float(self.closed_form.params[k]) for k in BASE_PARAMETERS},
+                **{k: _finite(self.closed_form.params[k]) for k in BASE_PARAMETERS},   # null: undetermined
                 "std": self.closed_form_std(),
+                "undetermined": dict(self.undetermined),
                 "method": self.closed_form.method,
                 "equations": list(self.closed_form.equations),
                 "message": self.closed_form.message,
@@ -222,7 +227,10 @@ def _pooled_closed_form(members: list[Analysis], which: str) -> dict[str, Any]:
         values[k] = float(np.sum(w * v[ok]) / np.sum(w)) if ok.any() else None
         stds[k] = float(1.0 / np.sqrt(np.sum(w))) if ok.any() else None
     methods = {m.closed_form.method for m in members}
-    return {**values, "std": stds, "method": methods.pop() if len(methods) == 1 else "pooled",
+    # A parameter no member determines: the first member's reason.
+    why = {k: next((m.undetermined[k] for m in members if k in m.undetermined), "no push determines it")
+           for k in BASE_PARAMETERS if values[k] is None}
+    return {**values, "std": stds, "undetermined": why, "method": methods.pop() if len(methods) == 1 else "pooled",
             "equations": list(dict.fromkeys(q for m in members for q in m.closed_form.equations)),
             "message": f"{which} pooled by inverse variance"}
 

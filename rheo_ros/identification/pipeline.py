@@ -20,7 +20,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.closed_form import from_final_displacement, from_pull, from_pull_and_keep
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.fit import away_from_boundaries, fit_record
-from rheo_ros.identification.noise import SensorNoise, Weights, sensor_noise
+from rheo_ros.identification.noise import SensorNoise, Weights, force_noise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record, RecordError
@@ -56,19 +56,33 @@ class ClosedForm:
     failed: tuple[str, ...] = ()
 
 
+def require_readings(record: Record, stream: str = "tactile") -> None:
+    """Refuse a record whose tactile readings carry no force (``SensorReading.unreadable``):
+    every number identified from them would be wrong. ``stream`` names them in the message.
+
+    Raises:
+        RecordError: names the record's source, the stream and what is wrong.
+    """
+    if record.sensor is not None and record.sensor.unreadable:
+        raise RecordError(f"{record.source}: {stream}: {record.sensor.unreadable}")
+
+
 def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedForm:
     """The paper's solution for the data of a push up to the end of ``phase``
     (``CLOSED_FORMS``), with a note in its message naming the better ones that failed.
 
     Raises:
-        RecordError: no closed form has a solution (each reason named).
+        RecordError: readings that carry no force (``require_readings``), or no closed
+            form has a solution (each reason named).
     """
+    require_readings(record)
     solutions: list[Estimate] = []
     failed: list[str] = []
     record = as_fresh_push(record)
+    nodes = unsaturated_nodes(record)
     for label, identify in CLOSED_FORMS[phase]:
         try:
-            solutions.append(identify(record, forward=forward))
+            solutions.append(identify(record, forward=forward, nodes=nodes))
         except RecordError as exc:
             failed.append(f"{label}: {exc}")
         if len(solutions) == 2:
@@ -80,6 +94,18 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedFor
         note = f"{reported.method} reported in place of: {'; '.join(failed)}"
         reported = replace(reported, message=f"{note}; {reported.message}" if reported.message else note)
     return ClosedForm(reported, tuple(s.params for s in solutions), tuple(failed))
+
+
+def unsaturated_nodes(record: Record) -> np.ndarray | None:
+    """The segments the closed forms use: those with no reading above the live range
+    (``DeadBand.top``: a cell, or all of them, clipped), whose curves eq. 6 and 7 would
+    bend. None: every segment (none saturates, or every one does: nothing to choose)."""
+    band = record.dead_band
+    if band is None or not np.any(np.isfinite(band.saturation)):
+        return None
+    std = force_noise(record)[0]
+    over = (record.force > band.top(np.nan_to_num(std))).any(axis=0)
+    return np.flatnonzero(~over) if over.any() and not over.all() else None
 
 
 # A contact this shallow (share of the push's depth) is taken as the stage's zero.
@@ -194,8 +220,10 @@ def fit_from_starts(record: Record, forward: QuasiStaticFE, starts: Sequence[dic
     directly (there is nothing to screen).
 
     Raises:
-        RecordError: no start could be fitted.
+        RecordError: readings that carry no force (``require_readings``), or no start
+            could be fitted.
     """
+    require_readings(record)
     noise = noise or sensor_noise(record)
     weights = fit_weights(noise)
     model = model or Model(three_element(1.0, 1.0, 1.0))
@@ -310,6 +338,17 @@ def undetermined(record: Record, est: Estimate, config: EstimatorConfig, unseen:
         for n in ("E", "c2"):
             out[n] = f"{unseen}; {longer}"
     return out
+
+
+def without_undetermined(est: Estimate, open_: dict[str, str]) -> Estimate:
+    """``est`` as it is reported: each parameter in ``open_`` (``undetermined``) NaN, its
+    covariance row and column too (a value the data leave open is not a value)."""
+    bad = [i for i, n in enumerate(est.params) if n in open_]
+    cov = None if est.covariance is None else est.covariance.copy()
+    if cov is not None:
+        cov[bad, :] = np.nan
+        cov[:, bad] = np.nan
+    return replace(est, params={n: np.nan if n in open_ else v for n, v in est.params.items()}, covariance=cov)
 
 
 def is_determined(value: float, std: float, relative_limit: float) -> bool:

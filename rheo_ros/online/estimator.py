@@ -52,6 +52,7 @@ from rheo_ros.identification.pipeline import (
     met_at_rest,
     relaxation_unseen,
     undetermined,
+    without_undetermined,
 )
 from rheo_ros.identification.pooling import Change, Pool, pool_experiments, pool_of
 from rheo_ros.models.effects import Model
@@ -347,14 +348,9 @@ class PhaseIdentifier:
     def _update(self, job: Job, est: Estimate, rmse: float, unseen: str = "") -> Update:
         rec, e = self._record(job), job.event
         names = tuple(n for n in BASE_PARAMETERS if n in est.params)
-        values = np.array([est.params[n] for n in names])
         open_ = undetermined(rec, est, self.config, unseen)
-        cov = None if est.covariance is None else est.covariance.copy()
-        bad = [i for i, n in enumerate(names) if n in open_]
-        values[bad] = np.nan
-        if cov is not None:
-            cov[bad, :] = np.nan
-            cov[:, bad] = np.nan
+        shown = without_undetermined(est, open_)
+        values, cov = np.array([shown.params[n] for n in names]), shown.covariance
         interim = "interim: the release still goes on; " if job.interim else ""
         message = "; ".join(filter(None, [job.warning(), interim + est.message]))
         return Update(
@@ -574,9 +570,8 @@ class OnlineEstimator:
             profile = replace(profile, release_time=max(e.t_end - profile.t_keep_end, 0.0))
         t0 = profile.t_pull_start - self.config.pre_contact
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
-        force = parts["force"][1].reshape(-1, self.mesh.cols)
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
-        self.sensor = self.setup.sensor(self.readout, force, markers)
+        self.sensor, force = self.setup.sensor(self.readout, parts["force"][1].reshape(-1, self.mesh.cols), markers)
         if kind == "new":   # the robot says so: another object, at rest
             self.at_rest_since = max(self.at_rest_since, profile.t_pull_start)
         # Pushes before the last one found at rest are another object's (or fully undone).

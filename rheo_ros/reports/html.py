@@ -301,7 +301,9 @@ def _parameters_section(result: Analysis) -> str:
         parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit, step)}")
     cf, cf_std = result.closed_form, result.closed_form_std()
     rows = "".join(f'<tr data-param="{html.escape(k)}"><td>{html.escape(k)}</td>{_value_cell(v, ".4g")}'
-                   + ('<td class="std" data-value="">-</td>' if cf_std.get(k) is None
+                   + (f'<td class="std undetermined" data-value="" title="{html.escape(result.undetermined[k])}">'
+                      "not determined</td>" if k in result.undetermined
+                      else '<td class="std" data-value="">-</td>' if cf_std.get(k) is None
                       else _value_cell(cf_std[k], ".2g", "std"))
                    + f"<td>{PARAMETER_UNITS.get(k, '')}</td></tr>" for k, v in cf.params.items())
     parts.append(
