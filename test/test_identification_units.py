@@ -415,12 +415,12 @@ def test_closed_form_reports_the_first_solution_and_keeps_two_starts(plane_case,
     calls = []
 
     def ok(name):
-        def f(record, forward=None):
+        def f(record, forward=None, nodes=None):
             calls.append(name)
             return Estimate({"E": 1.0}, name, (), message="fine")
         return f
 
-    def bad(record, forward=None):
+    def bad(record, forward=None, nodes=None):
         calls.append("bad")
         raise RecordError("no luck")
 
@@ -431,7 +431,7 @@ def test_closed_form_reports_the_first_solution_and_keeps_two_starts(plane_case,
     assert cl.failed == ("bad one: no luck",)
     assert cl.estimate.method == "a" and cl.estimate.message == "a reported in place of: bad one: no luck; fine"
     assert len(cl.starts) == 2
-    monkeypatch.setitem(pl.CLOSED_FORMS, "keep", (("bad one", bad), ("first", lambda r, forward=None: Estimate(
+    monkeypatch.setitem(pl.CLOSED_FORMS, "keep", (("bad one", bad), ("first", lambda r, forward=None, nodes=None: Estimate(
         {"E": 1.0}, "a", ()))))
     assert pl.closed_form("keep", rec, None).estimate.message == "a reported in place of: bad one: no luck"
     monkeypatch.setitem(pl.CLOSED_FORMS, "keep", (("bad one", bad), ("bad two", bad)))
@@ -767,10 +767,10 @@ def test_force_error_only_over_the_phases_the_record_reaches(short_case):
 def test_closed_form_passes_the_forward_model_and_joins_every_failure(short_case, monkeypatch):
     seen = []
 
-    def bad(record, forward=None):
+    def bad(record, forward=None, nodes=None):
         raise RecordError(f"no luck {len(seen)}")
 
-    def ok(record, forward="missing"):
+    def ok(record, forward="missing", nodes=None):
         seen.append(forward)
         return Estimate({"E": 1.0}, "ok", ())
 

@@ -180,3 +180,28 @@ def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_para
                 **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
     for name, value in expected.items():
         assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])
+
+
+def test_parameters_at_a_bound_have_no_std_and_are_named(tmp_path):
+    """Adhesion added by the user to a clean bag (bags/clean_short_keep, the package's
+    simulator): its parameters stay where the fit started (measured: fraction 0.1, time
+    30.8 s, infinite std). They are at a bound: null std and listed in ``at_bound`` in the
+    JSON, a warning naming them, "(at bound)" in the text and "at bound" in the report -
+    never a value +- a std; the base parameters keep theirs."""
+    result = analyze(str(Path(__file__).parents[1] / "bags" / "clean_short_keep"), effects=["adhesion"],
+                     discover_effects=False)
+    report = result.to_json()
+    added = report["models"][-1]
+    bound = ["adhesion.fraction", "adhesion.time"]
+    assert added["at_bound"] == bound and report["models"][0]["at_bound"] == []
+    assert all(added["std"][k] is None for k in bound)
+    assert all(added["std"][k] is not None for k in ("E", "c1", "c2", "gamma"))
+    assert any(w.startswith("three_element+adhesion: adhesion.fraction, adhesion.time at a bound")
+               for w in report["warnings"])
+    text = format_analysis(report)
+    assert "adhesion.fraction 0.1 (at bound)" in text and "adhesion.time 30.8 (at bound)" in text
+    page = render_report(result)
+    table = re.search(r'<table class="parameters" id="parameters-step-2".*?</table>', page, re.S).group(0)
+    for k in bound:
+        assert re.search(rf'<tr data-param="{k}">.*?<td class="std undetermined at-bound" data-value="">at bound</td>',
+                         table), k

@@ -170,8 +170,10 @@ def format_analysis(report: dict[str, Any]) -> str:
         lines.append(f"{m['name']:<52} {m['rmse_force']:>13.4g} " + " ".join(
             f"{ph.get(p, float('nan')):>9.3g}" for p in ("pull", "keep", "release")) + f" {m['bic']:>12.6g}")
     final = report["models"][-1]
+    bound = set(final.get("at_bound", ()))
     lines.append(f"{final['name']}: " + ", ".join(
-        f"{k} {_number(v)}" + (f" +- {final['std'][k]:.2g}" if final["std"].get(k) is not None else " (not determined)")
+        f"{k} {_number(v)}" + (" (at bound)" if k in bound else f" +- {final['std'][k]:.2g}"
+                               if final["std"].get(k) is not None else " (not determined)")
         for k, v in final["params"].items()))
     lines.append(report["diagnosis"]["evidence"])
     rest = report["diagnosis"].get("remaining")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.config.setup import Setup
-from rheo_ros.diagnosis.decision import Diagnosis, Verdict
+from rheo_ros.diagnosis.decision import Diagnosis, Verdict, at_bound
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.diagnosis.remaining import remaining
 from rheo_ros.fe.quasistatic import QuasiStaticFE
@@ -152,7 +152,7 @@ class Analysis:
                 f"is the pooled fit of {which}, judged one object"
                 + (f" (experiments {', '.join(map(str, others))} are another object or the same before it "
                    "changed: see pools and changes)" if others else ""))
-        report["warnings"] = list(dict.fromkeys(w for m in self.experiments for w in m.warnings)) + [note]
+        report["warnings"] = list(dict.fromkeys(w for m in self.experiments for w in m.report_warnings())) + [note]
         return report
 
     def pools(self) -> tuple[list[Pool], list[Change]]:
@@ -195,16 +195,25 @@ class Analysis:
             "sensor": self.record.sensor.to_json() if self.record.sensor else None,
             "models": [self._model_json(m) for m in self.models],
             "diagnosis": diagnosis,
-            "warnings": list(self.warnings),
+            "warnings": self.report_warnings(),
         }
 
-    @staticmethod
-    def _model_json(m: ModelFit) -> dict[str, Any]:
-        std = m.estimate.std
+    def at_bound(self, m: ModelFit) -> tuple[str, ...]:
+        """The parameters of model ``m`` that are no measurement (``decision.at_bound``)."""
+        return at_bound(m, self.base, self.record)
+
+    def report_warnings(self) -> list[str]:
+        """The analysis's warnings, and a line per model with parameters at a bound."""
+        bound = [f"{m.name}: {', '.join(names)} at a bound, not determined by these data (collapsed, run off "
+                 "or never moved): no std, no measurement" for m in self.models if (names := self.at_bound(m))]
+        return list(self.warnings) + bound
+
+    def _model_json(self, m: ModelFit) -> dict[str, Any]:
+        std, bound = m.estimate.std, self.at_bound(m)
         return {
             "name": m.name, "effects": list(m.effects), "forms": m.forms,
             "params": {k: float(v) for k, v in m.estimate.params.items()},
-            "std": {k: _finite(v) for k, v in std.items()},
+            "std": {k: None if k in bound else _finite(v) for k, v in std.items()}, "at_bound": list(bound),
             "rmse_force": m.rmse_force, "rmse_by_phase": m.rmse_by_phase, "bic": m.bic,
             "fit_to_noise": {k: _finite(v) for k, v in m.estimate.statistics.fit_to_noise.items()},
             "message": m.estimate.message,

@@ -44,6 +44,7 @@ from rheo_ros.experiment import PHASES
 from rheo_ros.identification.fit import misfit_limit
 from rheo_ros.identification.pipeline import is_determined
 from rheo_ros.models.effects import effect_class
+from rheo_ros.record import Record
 
 BIC_DECISIVE = 10.0
 # An effect's parameter is pinned down when its std is within this share of its value
@@ -212,6 +213,19 @@ def collapsed(fit: ModelFit, base: ModelFit, sample_interval: float) -> tuple[st
     if "c1" not in out and p["c1"] / p["E"] < sample_interval:
         out.append("c1")
     return tuple(out)
+
+
+def sample_interval(record: Record) -> float:
+    """The tactile readings' typical interval (s): the shortest time the data resolve."""
+    return float(np.median(np.diff(record.force_t))) if record.force_t.size > 1 else 0.0
+
+
+def at_bound(fit: ModelFit, base: ModelFit, record: Record) -> tuple[str, ...]:
+    """The parameters of ``fit`` that are no measurement: the base's it lost
+    (``collapsed``, against the ``base`` fit) and its effects' the data do not pin down
+    (``undetermined``: run off to a bound). Reported with no std, as at a bound."""
+    lost = collapsed(fit, base, sample_interval(record)) if fit is not base else ()
+    return (*lost, *(name for e in fit.model.effects for name in undetermined(fit, e.id)))
 
 
 def misfit_cells(fit: ModelFit) -> list[dict]:

@@ -20,6 +20,7 @@ from rheo_ros.diagnosis.decision import (
     collapsed,
     judge,
     phase_excess,
+    sample_interval,
 )
 from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import ModelFit, add_effect, fit_model, polish, restart_from_corrected
@@ -181,8 +182,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
     while True:
         verdict = diagnose(record, forward, models[-1], candidates, noise, progress, workers)
         if len(models) > 1:   # effects added: did they leave the base model whole?
-            interval = float(np.median(np.diff(record.force_t))) if record.force_t.size > 1 else 0.0
-            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], interval))
+            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], sample_interval(record)))
         verdicts.append(verdict)
         if verdict.missing_effect is None or len(models) > limit:
             return models, verdicts

@@ -140,8 +140,11 @@ def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tup
         return (np.exp(lt) * (Vinv @ x)) @ V.T, (phi * (Vinv @ b)) @ V.T
     aug = np.zeros((n * 2, n * 2))
     aug[:n, :n], aug[:n, n:] = A, np.eye(n)
-    big = expm(aug[None] * taus[:, None, None])
-    return big[:, :n, :n] @ x, big[:, :n, n:] @ b
+    # A fit's trial arms may be wild enough to overflow here: the non-finite response is
+    # the fit's to handle (a large residual), not a warning for the user.
+    with np.errstate(over="ignore", invalid="ignore"):
+        big = expm(aug[None] * taus[:, None, None])
+        return big[:, :n, :n] @ x, big[:, :n, n:] @ b
 
 
 def respond(element: Element, program: Program, t: np.ndarray) -> Response:

@@ -14,8 +14,8 @@ what a person sees:
 - each parameter table is ``<table class="parameters" id="parameters-step-<k>">`` (one
   per model, ``data-model`` its name) or ``id="parameters-closed-form"``; a parameter's
   row is ``<tr data-param="<name>">`` with ``<td class="value">`` and ``<td class="std">``,
-  each with ``data-value``, the float's ``repr`` (empty for no std, ``inf``/``nan``
-  for an undetermined one); the BIC and RMS rows are ``<tr data-stat="bic">`` and
+  each with ``data-value``, the float's ``repr`` (empty for no std or one at a bound,
+  ``td.std.at-bound``, ``inf``/``nan`` for an undetermined one); the BIC and RMS rows are ``<tr data-stat="bic">`` and
   ``<tr data-stat="rmse_force">``;
 - where the catalogue does not explain the data, the section "What remains": its
   sentence ``<p id="remaining-text">``, each phase's shape a row ``<tr data-phase=...
@@ -298,7 +298,7 @@ def _mesh_section(result: Analysis) -> str:
 def _parameters_section(result: Analysis) -> str:
     parts = ["<section><h2>Parameters</h2>"]
     for step, fit in enumerate(result.models, start=1):
-        parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit, step)}")
+        parts.append(f"<h3>Step {step}: {html.escape(fit.name)}</h3>{_model_table(fit, step, result.at_bound(fit))}")
     cf, cf_std = result.closed_form, result.closed_form_std()
     rows = "".join(f'<tr data-param="{html.escape(k)}"><td>{html.escape(k)}</td>{_value_cell(v, ".4g")}'
                    + (f'<td class="std undetermined" data-value="" title="{html.escape(result.undetermined[k])}">'
@@ -321,12 +321,15 @@ def _value_cell(value: float, spec: str, cls: str = "value", extra: str = "") ->
     return f'<td class="{cls}" data-value="{float(value)!r}"{extra}>{value:{spec}}</td>'
 
 
-def _model_table(fit: ModelFit, step: int) -> str:
+def _model_table(fit: ModelFit, step: int, bound: Sequence[str] = ()) -> str:
+    """``bound``: the parameters at a bound (``Analysis.at_bound``), shown with no std."""
     std = fit.estimate.std
     rows = []
     for name, value in fit.estimate.params.items():
         s = std.get(name)
-        if s is None:
+        if name in bound:
+            shown = '<td class="std undetermined at-bound" data-value="">at bound</td>'
+        elif s is None:
             shown = '<td class="std" data-value="">-</td>'
         elif not np.isfinite(s):
             shown = f'<td class="std undetermined" data-value="{float(s)!r}">not determined</td>'
