@@ -168,6 +168,8 @@ class Effects:
     sensor_lag: (tau s, share): a sensor with memory, in no catalogue: each cell reads
         (1 - share) of the pressure at once and ``share`` through a first-order lag of time
         tau (the elastomer over the cells creeps), before its noise.
+    camera_drift: (vx m/s, vy m/s): in no catalogue and in the markers alone: the camera's
+        mount creeps, every marker seen moving by (vx, vy) t from t = 0.
     """
     stiffening: float | None = None
     maxwell: tuple[tuple[float, float], ...] = ()
@@ -175,6 +177,7 @@ class Effects:
     drift: tuple[float, float, float] | None = None
     column_drift: tuple[float, float] | None = None
     sensor_lag: tuple[float, float] | None = None
+    camera_drift: tuple[float, float] | None = None
 
 
 EFFECTS: dict[str, Effects] = {
@@ -468,6 +471,8 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     x0, y0 = gx.ravel(), gy.ravel()   # row-major, bottom row first
     xy = np.stack([x0 + material.gamma * eps[:, None] * (x0 - layout.width / 2),
                    y0 - eps[:, None] * y0], axis=-1)
+    if effects.camera_drift is not None:
+        xy = xy + np.outer(mk_t, effects.camera_drift)[:, None, :]
     if sensor.marker_noise > 0:
         xy = xy + sensor.marker_noise * cam_rng.standard_normal(xy.shape)
     return Data(stage_t, depth, velocity, tac_t, p.astype(np.float32), mk_t, xy, mech.pushes)

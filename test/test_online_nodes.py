@@ -246,7 +246,10 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
     refused; a cancelled goal retracts the stage; a goal on a new object at once after it
     (the simulator's fresh block) is trusted, right and starts a pool of its own; the run's
     recording (with /rheo/object) through rheo analyze gives the node's estimates and pools."""
-    params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True}
+    # No interim fits of the releases (test_pipeline has them): the estimator's lane
+    # spends itself on each push's final fit and diagnosis.
+    params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True,
+              "estimator.release_interval": 60.0}
     (tmp_path / "params.yaml").write_text(params_yaml(params))
     g = Graph(ros_env(), tmp_path)
     depths = []

@@ -246,15 +246,15 @@ def phase_excess(fit: ModelFit, phases: Sequence[str]) -> float:
 def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))
-    phases = cls.shows_in or PHASES
-    chi_b, n_b = current.phase_chi2(phases)
-    chi_a, n_a = with_effect.phase_chi2(phases)
+    phases, signals = cls.shows_in or PHASES, cls.signals   # judged where it acts: its phases and readings
+    chi_b, n_b = current.phase_chi2(phases, signals)
+    chi_a, n_a = with_effect.phase_chi2(phases, signals)
     before, after = _excess(chi_b, n_b), _excess(chi_a, n_a)
     explained = (chi_b - chi_a) / (chi_b - n_b) if chi_b > n_b else 0.0
     delta = with_effect.bic - current.bic
     footprint = {}
     for phase in phases if len(phases) > 1 else ():
-        (cb, nb), (ca, na) = current.phase_chi2((phase,)), with_effect.phase_chi2((phase,))
+        (cb, nb), (ca, na) = current.phase_chi2((phase,), signals), with_effect.phase_chi2((phase,), signals)
         if _excess(cb, nb) > EXCESS_SIGMAS:
             footprint[phase] = float((cb - ca) / (cb - nb))
         elif _excess(ca, na) > EXCESS_SIGMAS:

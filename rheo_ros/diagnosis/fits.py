@@ -81,12 +81,15 @@ class ModelFit:
     def comparison_samples(self, signal: str) -> int:
         return sum(s.samples for s in self.comparison.stats if s.signal == signal)
 
-    def phase_chi2(self, phases: Iterable[str]) -> tuple[float, int]:
-        """Chi-square of the force residuals (every segment, live readings) over
-        ``phases`` and the readings it counts."""
+    def phase_chi2(self, phases: Iterable[str], signals: Iterable[str] = ("force",)) -> tuple[float, int]:
+        """Chi-square of the residuals over ``phases`` of ``signals`` (``force``: every
+        segment's live readings; ``markers``: every marker coordinate) and the readings
+        it counts."""
+        signals = set(signals)
         chi, n = 0.0, 0
         for s in self.comparison.stats:
-            if s.signal.startswith("P") and s.phase in phases and s.noise > 0:
+            kind = "force" if s.signal.startswith("P") else s.signal
+            if kind in signals and s.phase in phases and s.noise > 0:
                 chi += s.samples * (s.rms / s.noise) ** 2
                 n += s.samples
         return chi, n

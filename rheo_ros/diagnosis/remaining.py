@@ -126,8 +126,8 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
     (a sensor-side effect, or a material one), and the total force's residual shape in
     each phase of the push (``phase_shape``)."""
     cells = misfit_cells(fit)
-    force = [c for c in cells if c["signal"].startswith("P")]
-    markers = [c for c in cells if not c["signal"].startswith("P")]
+    markers = [c for c in cells if c["signal"] == "markers"]
+    force = [c for c in cells if c["signal"] != "markers"]   # the segments and their total
     residual = record.force.sum(axis=1) - fit.prediction_total
     noise = difference_noise(residual, away_from_boundaries(record.force_t, record.profile()))[0]
     shapes = {}
@@ -141,7 +141,8 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
     order = (*PHASES, "after")
     return {"misfits": cells,
             "phases": sorted({c["phase"] for c in cells}, key=lambda ph: (order.index(ph) if ph in order else 9, ph)),
-            "segments": sorted({c["signal"] for c in force}), "force_only": bool(force) and not markers,
+            "segments": sorted({c["signal"] for c in force if c["signal"].startswith("P")}),
+            "force_only": bool(force) and not markers,
             "markers_only": bool(markers) and not force, "force_noise": float(noise), "shapes": shapes}
 
 

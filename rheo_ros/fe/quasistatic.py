@@ -240,5 +240,5 @@ class QuasiStaticFE:
         nf, nm = len(force_t), len(marker_t)
         release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
         force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
-        disp = depth[nf : nf + nm, None, None] * shape.displacement[None]
+        disp = model.measured_markers(marker_t, depth[nf : nf + nm, None, None] * shape.displacement[None])
         return Prediction(force, disp)

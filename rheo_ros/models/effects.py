@@ -12,9 +12,11 @@ a hook, so the base elements and the FE model never learn about it:
   unit E at its own nominal strain); the response is then integrated numerically
   (``response.respond_voigt_spring``), and the FE simulator, linear, does not take it;
 - ``measured_force(t, force, release)``: what reaches the sensor besides the
-  specimen's stress (adhesion, drift), given when the stage let go (``Release``).
+  specimen's stress (adhesion, drift), given when the stage let go (``Release``);
+- ``measured_markers(t, displacement)``: what the camera sees of the markers'
+  displacements (a camera's drift, scale or distortion).
 
-``stress_scale`` and ``measured_force`` get samples in time order (``t`` increasing)
+``stress_scale``, ``measured_force`` and ``measured_markers`` get samples in time order (``t`` increasing)
 and return one row per sample. An effect without memory (``memory`` 0, the default)
 must give each row from that sample alone: the streaming simulator then calls it
 with the current sample only. An effect whose reading or stress depends on its past
@@ -99,6 +101,8 @@ class Effect:
             ``keep``, ``release``): the diagnosis checks that adding it moved them.
         signed: parameters that may take either sign (fitted on a linear scale; the
             rest are positive and fitted on a log scale).
+        signals: which readings it changes, ``force`` and/or ``markers``: the diagnosis
+            judges it on their misfit.
         resolving_experiment: what to record when the data cannot decide on it.
     """
 
@@ -106,6 +110,7 @@ class Effect:
     form: ClassVar[str] = "default"
     shows_in: ClassVar[tuple[str, ...]] = ()
     signed: ClassVar[tuple[str, ...]] = ()
+    signals: ClassVar[tuple[str, ...]] = ("force",)
     resolving_experiment: ClassVar[str] = "a longer record"
 
     @classmethod
@@ -152,10 +157,15 @@ class Effect:
         feels; ``release``: when the stage let go (None: not yet)."""
         return force
 
+    def measured_markers(self, t: np.ndarray, displacement: np.ndarray) -> np.ndarray:
+        """``displacement``: (T, N, 2) in m of the markers at times ``t`` (s) -> what the
+        camera sees of them."""
+        return displacement
+
     @property
     def memory(self) -> float:
-        """Seconds of past samples a row of ``stress_scale`` or ``measured_force`` depends
-        on (0: none; ``math.inf``: all of them)."""
+        """Seconds of past samples a row of ``stress_scale``, ``measured_force`` or
+        ``measured_markers`` depends on (0: none; ``math.inf``: all of them)."""
         return 0.0
 
 
@@ -649,6 +659,11 @@ class Model:
         for effect in self.effects:
             force = effect.measured_force(t, force, release)
         return force
+
+    def measured_markers(self, t: np.ndarray, displacement: np.ndarray) -> np.ndarray:
+        for effect in self.effects:
+            displacement = effect.measured_markers(t, displacement)
+        return displacement
 
     @property
     def memory(self) -> float:

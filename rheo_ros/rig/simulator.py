@@ -61,9 +61,10 @@ class Simulator:
         self.release: Release | None = None
         self._contact_force = np.zeros(self.mesh.cols)
         # Effects with memory get the stretch of the run they depend on, step by step as
-        # ``simulate_clean`` has it: (t, linear bottom forces, nominal strain) per step.
+        # ``simulate_clean`` has it: (t, linear bottom forces, nominal strain, marker
+        # displacements) per step.
         self.memory = self.model.memory
-        self._history: deque[tuple[float, np.ndarray, float]] = deque()
+        self._history: deque[tuple[float, np.ndarray, float, np.ndarray]] = deque()
 
     @property
     def t(self) -> float:
@@ -73,25 +74,32 @@ class Simulator:
         """Bottom nodal forces (N) the specimen's stress exerts now."""
         if not self.memory:
             return self.fe.bottom_force() * float(self.model.stress_scale(np.array(self.fe.strain())))
-        _, force, strain = self._past()
+        _, force, strain, _ = self._past()
         return force[-1] * self.model.stress_scale(strain)[-1]
 
-    def _past(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _past(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The steps the effects' memory reaches back to: times (s), linear bottom forces
-        (T, nodes) N and nominal strains (T,)."""
-        t, force, strain = zip(*self._history)
-        return np.array(t), np.array(force), np.array(strain)
+        (T, nodes) N, nominal strains (T,) and marker displacements (T, N, 2) m."""
+        t, force, strain, displacement = zip(*self._history)
+        return np.array(t), np.array(force), np.array(strain), np.array(displacement)
 
     def _felt_force(self) -> np.ndarray:
         """The bottom nodal forces (N) the sensor feels now (the effects' hooks)."""
         if not self.memory:
             return self.model.measured_force(np.array([self.t]), self.specimen_force()[None], self.release)[0]
-        t, force, strain = self._past()
+        t, force, strain, _ = self._past()
         return self.model.measured_force(t, force * self.model.stress_scale(strain)[:, None], self.release)[-1]
+
+    def _seen_displacement(self) -> np.ndarray:
+        """The marker displacements (N, 2) in m the camera sees now (the effects' hooks)."""
+        if not self.memory:
+            return self.model.measured_markers(np.array([self.t]), self.fe.displacement()[None])[0]
+        t, _, _, displacement = self._past()
+        return self.model.measured_markers(t, displacement)[-1]
 
     def _remember(self) -> None:
         if self.memory:
-            self._history.append((self.t, self.fe.bottom_force(), float(self.fe.strain())))
+            self._history.append((self.t, self.fe.bottom_force(), float(self.fe.strain()), self.fe.displacement()))
             while self._history[0][0] < self.t - self.memory:
                 self._history.popleft()
 
@@ -142,7 +150,7 @@ class Simulator:
             felt = self._felt_force()[None]
             out.append(Frame("tactile", self.t, self.tactile.read(self.tactile.pressure(felt), self.tactile_rng)[0]))
         if self.k % self.every["markers"] == 0:
-            positions = self.mesh.nodes + self.fe.displacement()
+            positions = self.mesh.nodes + self._seen_displacement()
             out.append(Frame("markers", self.t, self.camera.observe(positions, self.marker_rng)))
         return out
 
@@ -200,8 +208,9 @@ def simulate_clean(setup: Setup) -> CleanRun:
     t = np.union1d(stage_t, np.union1d(tactile_t, marker_t))
     res = fe.simulate(profile, t)
     felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)
+    seen = model.measured_markers(t, res.displacement)
     ti, mi = np.searchsorted(t, tactile_t), np.searchsorted(t, marker_t)
-    return CleanRun(stage_t, depth, velocity, tactile_t, felt[ti], marker_t, mesh.nodes[None] + res.displacement[mi])
+    return CleanRun(stage_t, depth, velocity, tactile_t, felt[ti], marker_t, mesh.nodes[None] + seen[mi])
 
 
 def observe(setup: Setup, clean: CleanRun, seed: int = 0) -> Run:
