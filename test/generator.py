@@ -42,7 +42,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from rosbags.typesys import Stores, get_typestore
 from scipy.integrate import solve_ivp
-from scipy.signal import lfilter
+from scipy.signal import lsim, lti
 
 GENERATOR_ID = "test/generator.py (independent homogeneous block, scipy solve_ivp)"
 PARAMS_KEY = "rheo_ros.params"
@@ -167,7 +167,7 @@ class Effects:
         own rate r_c = r (1 + spread N(0, 1)) (a gradient along the array).
     sensor_lag: (tau s, share): a sensor with memory, in no catalogue: each cell reads
         (1 - share) of the pressure at once and ``share`` through a first-order lag of time
-        tau (the elastomer over the cells creeps), before its noise.
+        tau from rest (the elastomer over the cells creeps), before its noise.
     camera_drift: (vx m/s, vy m/s): in no catalogue and in the markers alone: the camera's
         mount creeps, every marker seen moving by (vx, vy) t from t = 0.
     """
@@ -445,8 +445,12 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         p += tac_t[:, None, None] * rates[None, None, :]
     if effects.sensor_lag is not None:
         tau, share = effects.sensor_lag
-        a = 1.0 - math.exp(-(tac_t[1] - tac_t[0]) / tau)   # exact for a uniform grid, held samples
-        p = (1.0 - share) * p + share * lfilter([a], [1.0, a - 1.0], p, axis=0, zi=np.zeros((1, *shape[1:])))[0]
+        # The continuous lag tau dy/dt = p - y from rest, each cell's pressure linear between
+        # its samples (scipy's lsim, linear interpolation: exact for that input).
+        lag = lti([1.0], [tau, 1.0])
+        cells = p.reshape(len(tac_t), -1)
+        lagged = np.column_stack([lsim(lag, cells[:, j], tac_t)[1] for j in range(cells.shape[1])])
+        p = (1.0 - share) * p + share * lagged.reshape(p.shape)
     if sensor.noise > 0:
         p += sensor.noise * tac_rng.standard_normal(shape)
     if sensor.floor:
@@ -612,6 +616,34 @@ def bench_effect(rng: np.random.Generator, family: str, material: Material, prof
     raise KeyError(family)
 
 
+# Effects in no catalogue (rheo bench diagnosis --outside): what the package must not name.
+BENCH_OUTSIDE = ("sensor_lag", "camera_drift")
+
+
+def bench_outside(rng: np.random.Generator, name: str) -> tuple[dict[str, Any], dict[str, float], str]:
+    """One effect in no catalogue by this generator's law: its ``Effects`` fields, its
+    values and the signal it shows in. sensor_lag: a share 2..50 % of each reading through
+    a lag of 0.3..10 s; camera_drift: the camera seen moving at 0.1..5 um/s each way."""
+    if name == "sensor_lag":
+        tau, share = _log_uniform(rng, 0.3, 10.0), _log_uniform(rng, 0.02, 0.5)
+        return {"sensor_lag": (tau, share)}, {"tau": tau, "share": share}, "force"
+    if name == "camera_drift":
+        v = tuple(float(rng.choice((-1.0, 1.0))) * _log_uniform(rng, 1e-7, 5e-6) for _ in range(2))
+        return {"camera_drift": v}, {"vx": v[0], "vy": v[1]}, "markers"
+    raise KeyError(name)
+
+
+def _marker_size(material: Material, effects: Effects, sensor: Sensor, seed: int, profile: Profile,
+                 layout: Layout) -> float:
+    """RMS change ``effects`` make in the noise-free marker positions, over the camera noise
+    (each marker coordinate's mean over the record taken off: a constant offset is no
+    information, the analysis takes it off too)."""
+    raw = replace(sensor, noise=0.0, marker_noise=0.0)
+    a, b = (synthesize(material, e, raw, seed, profile, layout).markers for e in (effects, Effects()))
+    change = (a - b) - (a - b).mean(axis=0)
+    return float(np.sqrt(np.mean(change ** 2)) / sensor.marker_noise)
+
+
 def _total_force(images: np.ndarray, layout: Layout) -> np.ndarray:
     """The bottom's total force (N) of tactile images (T, rows, cols) in Pa."""
     cell = layout.width / layout.tactile_cols * layout.thickness
@@ -636,7 +668,7 @@ def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int,
 
 
 def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
-              quick: bool = False) -> dict[str, Any]:
+              quick: bool = False, outside: bool = False) -> dict[str, Any]:
     """The diagnosis bench's protocol (``rheo bench diagnosis --generator test/generator.py``):
     draw bag ``index`` from ``rng``, write it at ``out_dir`` (its .truth.json and
     .params.yaml beside it) and return its truth in the package's vocabulary.
@@ -644,7 +676,8 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
     Draws: E log-uniform 1e4..1e5 Pa, c1 / E 2..15 s, c2 / E 300..3000 s, gamma
     0.2..0.45; depth 5..12 mm, keep 15..40 s, release 20..40 s (quick: 15..18, 20..24 s);
     a sensor of ``SENSORS`` but the noise-free one, its noises times ``noise_scale``;
-    ``index mod 3`` hidden effects of distinct families (``bench_effect``)."""
+    ``index mod 3`` hidden effects of distinct families (``bench_effect``); with
+    ``outside``, none of them but one effect in no catalogue (``bench_outside``)."""
     E = _log_uniform(rng, 1e4, 1e5)
     material = Material(E=E, c1=E * float(rng.uniform(2.0, 15.0)), c2=E * float(rng.uniform(300.0, 3000.0)),
                         gamma=float(rng.uniform(0.2, 0.45)))
@@ -654,6 +687,16 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
     base = SENSORS[str(rng.choice(BENCH_SENSORS))]
     sensor = replace(base, noise=base.noise * noise_scale, marker_noise=base.marker_noise * noise_scale)
     layout, seed = Layout(), int(rng.integers(0, 2**31 - 1))
+    if outside:
+        name = str(rng.choice(BENCH_OUTSIDE))
+        fields, values, signal = bench_outside(rng, name)
+        effects = Effects(**fields)
+        sizes = bench_sizes(material, effects, sensor, seed, profile, layout)
+        size = sizes["size"] if signal == "force" else _marker_size(material, effects, sensor, seed, profile, layout)
+        generate(out_dir, material=material, effects=effects, sensor=sensor, seed=seed, profile=profile, layout=layout)
+        return {"hidden": [], "outside": [{"effect": name, "signal": signal, "size": size, "params": values}],
+                **sizes, "params_file": str(out_dir.with_name(out_dir.name + ".params.yaml")),
+                "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name}}
     drawn = [(family, *bench_effect(rng, family, material, profile, layout.height))
              for family in rng.choice(BENCH_FAMILIES, size=index % 3, replace=False)]
     hidden = [{"effect": str(family), "form": form, "params": values,

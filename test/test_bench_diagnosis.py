@@ -66,7 +66,7 @@ def test_two_quick_generator_bags_score_a_clean_bag_and_a_named_adhesion(tmp_pat
 def _row(hidden, named=(), undecided=False, forms=None, fit=1.0):
     """A made-up row: ``hidden`` as (family, form, readable size) triples."""
     hidden = [{"effect": e, "form": f, "size": s, "size_live": s} for e, f, s in hidden]
-    return {"hidden": hidden, "named": list(named), "forms": forms or {}, "force_rms_to_noise": fit,
+    return {"hidden": hidden, "outside": [], "named": list(named), "forms": forms or {}, "force_rms_to_noise": fit,
             "size_live": min((h["size_live"] for h in hidden), default=0.0),
             "outcome": diagnosis.outcome((h["effect"] for h in hidden), named, undecided)}
 
@@ -164,3 +164,38 @@ def test_sources_are_checked_against_the_catalogue(tmp_path):
 
 if __name__ == "__main__":
     pytest.main([__file__])
+
+
+def test_out_of_catalogue_bags_are_scored_apart_and_a_name_is_wrong():
+    """``--outside``: a bag hiding an effect in no catalogue is unexplained (nothing named,
+    the verdict says the catalogue does not explain it), wrong (anything named), missed
+    (called adequate) or undecided; scored apart from the catalogue's bags."""
+    assert diagnosis.outside_outcome([], False) == "unexplained"
+    assert diagnosis.outside_outcome(["adhesion"], False) == "wrong"
+    assert diagnosis.outside_outcome([], True) == "missed"
+    assert diagnosis.outside_outcome([], None, undecided=True) == "undecided"
+    assert diagnosis.outside_outcome([], None, failed=True) == "failed"
+
+    def outside(effect, outcome):
+        return {**_row([]), "outside": [{"effect": effect, "signal": "force", "size": 3.0, "params": {}}],
+                "outcome": outcome}
+    rows = [outside("sensor_lag", "unexplained"), outside("sensor_lag", "wrong"), outside("camera_drift", "missed"),
+            _row([])]
+    result = diagnosis.score(rows, 0.95)
+    assert result["outside"]["bags"] == 3 and result["clean_bags"] == 1
+    assert result["outside"]["outcomes"] == {"unexplained": 1, "missed": 1, "wrong": 1, "undecided": 0, "failed": 0}
+    assert result["outside"]["by_effect"]["sensor_lag"]["wrong"] == 1
+
+
+def test_the_generator_makes_out_of_catalogue_bags_and_the_simulator_refuses_to(tmp_path):
+    """One quick out-of-catalogue bag of the independent generator (seed 3, bag 0: a camera
+    drift, the markers' signal), analysed and scored; the package's simulator has none."""
+    result = diagnosis.run(replicates=1, seed=3, quick=True, generator=str(GENERATOR), outside=True)
+    [row] = result["bags"]
+    assert row["hidden"] == [] and [h["effect"] for h in row["outside"]] == ["camera_drift"]
+    assert row["outside"][0]["signal"] == "markers" and row["outcome"] in diagnosis.OUTSIDE_OUTCOMES
+    assert row["outcome"] != "wrong" and row["named"] == []
+    assert "a wrong effect named: 0/1" in diagnosis.format_table(result)
+    json.dumps(result)
+    with pytest.raises(ValueError, match="--outside: the package's simulator has only the catalogue's effects"):
+        diagnosis.run(replicates=1, outside=True)

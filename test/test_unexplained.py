@@ -188,8 +188,9 @@ def test_an_effect_with_memory_runs_in_the_streaming_simulator_as_in_the_whole_r
 def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_parameters_right(lagging, lag_plugin):
     """The same generator bag with the README's lag installed as a plugin: the diagnosis
     names sensor_lag, the model is adequate and explained, and the lag's time and share
-    and E, c1, c2 come back within 3 std of the generator's truth (measured: within 0.53
-    std, the time 0.06 % off; with every reading's time given to the lag - before, the fit
+    and E, c1, c2 come back within 3 std of the generator's truth (measured: within 0.16
+    std, the time 0.07 % off; the generator's lag by scipy's lsim, the plugin's by the
+    README's own formula; with every reading's time given to the lag - before, the fit
     gave it only the readings away from the phase boundaries and the share came out 1.6 %,
     15 std, high)."""
     _, truth, bag, _ = lagging
@@ -201,6 +202,30 @@ def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_para
                 **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
     for name, value in expected.items():
         assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])
+
+
+def test_on_the_package_simulators_bag_the_lag_plugin_is_named_and_right(tmp_path, lag_plugin):
+    """The other generator: the package's simulator (FE, its own sensor path) runs the
+    plugin's lag (share 0.3, 1.5 s) through a short push; the analysis with the plugin
+    names it, adequate, and nothing else (with the lag held between samples instead of the
+    README's exact law, a settling drift was named beside it); the lag and E, c1, c2
+    within 6 std of what the simulator was given, as test_discovery allows the package's
+    simulator (its finer mesh is not the fit's; measured: E +3.9 std, 0.18 %, the lag
+    within 1.9 std)."""
+    from rheo_ros.app.simulate import simulate_to_bag
+
+    truth = {"effects.sensor_lag.time": 1.5, "effects.sensor_lag.share": 0.3}
+    setup = Setup(check_params({"stage.keep_time": 10.0, "stage.release_time": 15.0, "simulator.refine": 4,
+                                "simulator.effects": ["sensor_lag"], **truth}))
+    simulate_to_bag(setup, 7, tmp_path / "bag")
+    report = analyze(str(tmp_path / "bag"), workers=1).to_json()
+    d = report["diagnosis"]
+    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["sensor_lag"], True, True), d["evidence"]
+    final = report["models"][-1]
+    expected = {"sensor_lag.time": 1.5, "sensor_lag.share": 0.3,
+                **{k: setup.params[f"material.{k}"] for k in ("E", "c1", "c2")}}
+    for name, value in expected.items():
+        assert abs(final["params"][name] - value) < 6 * final["std"][name], (name, final["params"][name], final["std"][name])
 
 
 def test_parameters_at_a_bound_have_no_std_and_are_named(tmp_path):

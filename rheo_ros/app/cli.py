@@ -254,7 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
                   noise_scale=(float, 1.0, "every noise times this (1: the source's default, 2: twice it)"),
                   generator=(str, None, "a Python file defining bench_bag(rng, index, out_dir, noise_scale, quick) "
                                         "(e.g. test/generator.py; default: the package's simulator)"),
-                  plot=(str, None, "also plot exact-set accuracy against effect size into this PNG or SVG file"))
+                  plot=(str, None, "also plot exact-set accuracy against effect size into this PNG or SVG file"),
+                  outside=(bool, False, "each bag hides an effect in no catalogue instead (needs --generator): "
+                                        "how often a wrong effect is named"))
     bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
     bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
@@ -327,7 +329,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (BagError, RecordError, GraphError, ParamsError, KeyError, OSError) as exc:
+    except (BagError, RecordError, GraphError, ParamsError, KeyError, OSError, ValueError) as exc:
         text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
         print(f"rheo: error: {' '.join(str(text).split())}", file=sys.stderr)
         return 2
