@@ -233,12 +233,14 @@ class QuasiStaticFE:
         r = (respond(model.rheology(), stage_program(profile), t[order]) if spring is None else
              respond_voigt_spring(model.rheology(), spring, self.mesh.height, stage_program(profile), t[order]))
         scaled, depth = np.empty_like(t), np.empty_like(t)
-        with np.errstate(over="ignore", invalid="ignore"):   # a fit's trial law may overflow: the fit handles it
-            # In time order: a stress effect with memory reads the strain's past.
-            scaled[order] = r.stress * model.stress_scale(r.strain / self.mesh.height)
         depth[order] = r.strain
         nf, nm = len(force_t), len(marker_t)
-        release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
-        force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
-        disp = model.measured_markers(marker_t, depth[nf : nf + nm, None, None] * shape.displacement[None])
+        # A fit's trial law may overflow (in the stress, or an effect's hook on it): the fit
+        # handles the non-finite prediction; no warning for the user.
+        with np.errstate(over="ignore", invalid="ignore"):
+            # In time order: a stress effect with memory reads the strain's past.
+            scaled[order] = r.stress * model.stress_scale(r.strain / self.mesh.height)
+            release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
+            force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
+            disp = model.measured_markers(marker_t, depth[nf : nf + nm, None, None] * shape.displacement[None])
         return Prediction(force, disp)
