@@ -49,6 +49,7 @@ WRITER_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
 </dds>
 """
 ACK_EVERY = 500      # messages between waits for every reader's acknowledgement
+ACK_SLICE = 0.1      # s: the longest a wait for acknowledgements holds off Ctrl-C
 
 
 def _bag_messages(path: Path, topics: Sequence[str] | None, loops: int
@@ -73,17 +74,28 @@ def _bag_messages(path: Path, topics: Sequence[str] | None, loops: int
                 yield conn.topic, conn.msgtype, t + shift, bytes(raw)
 
 
-def _publish(publisher: Any, raw: bytes, stop: threading.Event) -> None:
+def _publish(publisher: Any, raw: bytes, stop: threading.Event) -> bool:
     """Publish, waiting while the subscribers catch up: a KEEP_ALL writer whose
-    readers have not acknowledged enough refuses the write after its blocking time."""
+    readers have not acknowledged enough refuses the write after its blocking time.
+    False: stopped (Ctrl-C) before the message could be written."""
     while True:
         try:
             publisher.publish(raw)
-            return
+            return True
         except RCLError:
             if stop.is_set():
-                raise
+                return False
             publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=0.05))
+
+
+def _acked(publisher: Any, seconds: float, stop: threading.Event) -> bool:
+    """Whether every reader acknowledged what ``publisher`` wrote within ``seconds``;
+    waits in slices of ``ACK_SLICE`` s so that Ctrl-C ends the wait at once (False)."""
+    deadline = time.monotonic() + seconds
+    while not publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=ACK_SLICE)):
+        if stop.is_set() or time.monotonic() > deadline:
+            return False
+    return True
 
 
 def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 1,
@@ -144,17 +156,19 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
                 delay = start_wall + (t - start_bag) * 1e-9 / rate - time.monotonic()
                 if delay > 0:
                     stop.wait(delay)
-            _publish(pubs[topic], raw, stop)
+            if not _publish(pubs[topic], raw, stop):
+                break
             counts[topic] += 1
             sent += 1
             if sent % ACK_EVERY == 0:
                 # Pacing: a backlog in a reader's queue makes each take slower.
                 for p in pubs.values():
-                    p.wait_for_all_acked(rclpy.duration.Duration(seconds=5.0))
+                    _acked(p, 5.0, stop)
 
-        # What a reader has not acknowledged dies with the writer: wait for it.
+        # What a reader has not acknowledged dies with the writer: wait for it (not once
+        # the user stopped the play: Ctrl-C ends it within a second, what is in flight lost).
         for p in pubs.values():
-            if not p.wait_for_all_acked(rclpy.duration.Duration(seconds=60.0)):
+            if not _acked(p, 60.0, stop) and not stop.is_set():
                 raise GraphError(f"{path}: a subscriber did not acknowledge every message within 60 s")
         return counts
     finally:
