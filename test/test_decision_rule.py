@@ -35,10 +35,11 @@ class Fit:
         self.model = SimpleNamespace(signed_parameters=tuple(signed))
         self.asked: list[tuple[str, ...]] = []
 
-    def phase_chi2(self, phases):
+    def phase_chi2(self, phases, signals=("force",)):
+        """``chi`` keyed by phase (the force) or by (signal, phase) for another signal."""
         self.asked.append(tuple(phases))
-        chi = sum(self.chi.get(p, (0.0, 0))[0] for p in phases)
-        return chi, sum(self.chi.get(p, (0.0, 0))[1] for p in phases)
+        keys = [p if s == "force" else (s, p) for s in signals for p in phases]
+        return sum(self.chi.get(k, (0.0, 0))[0] for k in keys), sum(self.chi.get(k, (0.0, 0))[1] for k in keys)
 
 
 def pair(chi_before, chi_after, n=200, delta=-50.0, phase="keep", params=None, std=None, others=(0.0, 0)):
@@ -116,7 +117,7 @@ def test_the_form_fitted_decides_where_the_effect_is_judged():
 
 
 def test_an_effect_that_names_no_phase_is_judged_over_every_phase(monkeypatch):
-    monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(shows_in=(), form=""))
+    monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(shows_in=(), form="", signals=("force",)))
     current, with_effect = pair(400.0, 220.0)
     judge(current, with_effect, "anything")
     # All together, then each on its own (the footprint).
@@ -310,7 +311,8 @@ def test_the_footprint_counts_phases_beyond_five_sd_and_any_effect_of_two_phases
     """A phase at exactly 5 sd of excess (chi 300 over 200 readings) is no misfit, before
     or after; an effect showing in two phases is judged in each."""
     monkeypatch.setattr(decision, "effect_class",
-                        lambda effect_id, form=None: SimpleNamespace(shows_in=("pull", "keep"), form=""))
+                        lambda effect_id, form=None: SimpleNamespace(shows_in=("pull", "keep"), form="",
+                                                                         signals=("force",)))
 
     def judged(pull, keep):
         before = Fit({"pull": (pull[0], 200), "keep": (keep[0], 200)}, bic=1000.0)
@@ -347,3 +349,17 @@ def test_a_signed_parameter_at_zero_is_a_value_a_positive_one_needs_its_std_with
     # Only the effect's own parameters, positive ones judged alone.
     mixed = fit({"E": 1.0, "a.k": 1.0, "a.s": 0.0}, {"E": 9.0, "a.k": 2.0, "a.s": 0.5}, ("a.s",))
     assert decision.undetermined(mixed, "a") == ["a.k", "a.s"]
+
+
+def test_an_effect_on_the_markers_is_judged_on_the_markers(monkeypatch):
+    """``Effect.signals``: a camera's effect is judged on the markers' chi-square in its
+    phases (here it removes the markers' misfit; the force, unchanged, does not count)."""
+    monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(
+        shows_in=("keep",), form="", signals=("markers",)))
+    before = Fit({"keep": (200.0, 200), ("markers", "keep"): (3000.0, 200)}, bic=1000.0)
+    after = Fit({"keep": (200.0, 200), ("markers", "keep"): (200.0, 200)}, bic=900.0)
+    c = judge(before, after, "camera")
+    assert c.significant and c.explained == pytest.approx(1.0)
+    monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(
+        shows_in=("keep",), form="", signals=("force",)))
+    assert not judge(before, after, "camera").significant   # on the force it explains nothing
