@@ -243,9 +243,9 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
     """Stage waiting for goals, simulator on /clock, estimator: a goal gives feedback per
     update and the final whole-record estimate, trusted and right; a second push by the
     README's client meets the set the first left, trusted and right; busy and bad goals are
-    refused; a cancelled goal retracts the stage; a goal on a new object at once after it
-    (the simulator's fresh block) is trusted, right and starts a pool of its own; the run's
-    recording (with /rheo/object) through rheo analyze gives the node's estimates and pools."""
+    refused; a goal on a new object (the simulator's fresh block) is trusted, right and
+    starts a pool of its own; a cancelled goal retracts the stage; the run's recording
+    (with /rheo/object) through rheo analyze gives the node's estimates and pools."""
     # No interim fits of the releases (test_pipeline has them): the estimator's lane
     # spends itself on each push's final fit and diagnosis.
     params = {**load_params(None), **SHORT_RUN, "stage.autostart": False, "simulator.clock": True,
@@ -320,7 +320,21 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
             r = result.result().result
             assert not r.success and r.message.startswith("bad goal: goal: ") and why in r.message, r.message
             assert all(d == 0.0 for d in depths), depths
-        # A second goal, cancelled once the pull has been identified.
+        # Then another object: the goal says so, the simulator puts a fresh block of the same
+        # clay in place, and the push is modelled from rest (trusted and right) and starts a
+        # pool.
+        goal = client.send_goal_async(Identify.Goal(object="new"))
+        g.spin_until(goal.done, 10, "the goal on a new object accepted")
+        result = goal.result().get_result_async()
+        g.spin_until(result.done, 300, "the result on the new object")
+        third = result.result().result
+        assert_trusted_and_right(third)
+        assert third.estimate.experiment == first + 2
+        assert (list(third.pool.experiments), third.pool.started, third.pool.stated) == ([first + 2], True, True)
+        assert "a new block in place" in (tmp_path / "simulator.log").read_text()
+        # A last goal, cancelled once the pull has been identified. (A push at once after a
+        # cancel is not asserted here: the history model of a cancelled push is sometimes off,
+        # issue 25's known limit in docs/PLAN.md.)
         feedback.clear()
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
         g.spin_until(goal.done, 10, "second goal answered")
@@ -338,38 +352,24 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.spin_until(lambda: len(depths) > 5 and depths[-1] == 0.0, 10, "stage samples at depth 0 after the cancel")
         assert all(later <= earlier for earlier, later in zip(depths, depths[1:])), depths
         assert "cancelled" in (tmp_path / "stage.log").read_text()
-        # Then, at once after the cancelled push, another object: the goal says so, the
-        # simulator puts a fresh block of the same clay in place, and the push is modelled
-        # from rest (trusted and right) and starts a pool. (A full push on the same block at
-        # once after a cancel is not asserted here: the history model of a cancelled push is
-        # sometimes off, issue 25's known limit in docs/PLAN.md.)
-        goal = client.send_goal_async(Identify.Goal(object="new"))
-        g.spin_until(goal.done, 10, "the goal on a new object accepted")
-        result = goal.result().get_result_async()
-        g.spin_until(result.done, 300, "the result on the new object")
-        fourth = result.result().result
-        assert_trusted_and_right(fourth)
-        assert fourth.estimate.experiment == first + 3
-        assert (list(fourth.pool.experiments), fourth.pool.started, fourth.pool.stated) == ([first + 3], True, True)
-        assert "a new block in place" in (tmp_path / "simulator.log").read_text()
         # The recording of the run through rheo analyze: four experiments, and the three full
         # pushes' final estimates are what the node published (one computation: to 1e-4 of
         # each parameter's std; the fit in the node's worker process and here differ in the
         # last bits - seen 1.7e-9 relative on c2, 3e-7 of its std); the hint was recorded,
-        # so push 4 is a new object offline too, in a pool of its own.
+        # so push 3 is a new object offline too, starting a pool of its own.
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=30) == 0, (tmp_path / "rheo.log").read_text()[-1500:]
         report = analyze(tmp_path / "recorded", discover_effects=False, workers=1).to_json()
         # The package's outputs decode from the recording's own definitions, with mcap's
-        # reader as with rosbags: the last pool is the fourth push's, as the action said.
-        assert_outputs_decode(tmp_path / "recorded", read_pool(fourth.pool))
+        # reader as with rosbags.
+        assert_outputs_decode(tmp_path / "recorded", read_pool(third.pool))
         assert len(report["experiments"]) == 4
-        assert [e["object"] for e in report["experiments"]] == ["", "", "", "new"]
-        assert report["experiments"][3]["from_rest"] and report["pools"][-1]["experiments"] == [4]
-        assert report["pools"][0]["experiments"][:2] == [1, 2]
-        assert report["changes"][-1]["experiment"] == 4 and report["changes"][-1]["stated"]
+        assert [e["object"] for e in report["experiments"]] == ["", "", "new", ""]
+        assert report["experiments"][2]["from_rest"]
+        assert report["pools"][0]["experiments"] == [1, 2]
+        assert any(c["experiment"] == 3 and c["stated"] for c in report["changes"]), report["changes"]
         pushes = ((1, read_estimate(first_estimate)), (2, {"params": second["values"], "std": second["std"]}),
-                  (4, read_estimate(fourth.estimate)))
+                  (3, read_estimate(third.estimate)))
         for number, online in pushes:
             offline = report["experiments"][number - 1]["models"][0]["params"]
             for k, v in online["params"].items():
@@ -382,7 +382,10 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         g.close()
 
 
-def assert_outputs_decode(bag: Path, last_pool: dict) -> None:
+def assert_outputs_decode(bag: Path, pool: dict) -> None:
+    """The package's outputs in the recording decode with mcap's reader and with rosbags
+    (from the bag's own definitions), and ``pool`` (a pushes' pool the action returned) is
+    among the /rheo/pool messages, the same numbers in both."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
     from rosbags.highlevel import AnyReader
@@ -394,13 +397,14 @@ def assert_outputs_decode(bag: Path, last_pool: dict) -> None:
                 topics=["/rheo/estimate", "/rheo/diagnosis", "/rheo/pool"])]
     topics = {t for t, _ in decoded}
     assert topics == {"/rheo/estimate", "/rheo/diagnosis", "/rheo/pool"}
-    pools = [m for t, m in decoded if t == "/rheo/pool"]
-    assert list(pools[-1].experiments) == last_pool["experiments"] and pools[-1].stated
+    mine = [m for t, m in decoded if t == "/rheo/pool" and list(m.experiments) == pool["experiments"]]
+    assert mine and mine[-1].stated
     with AnyReader([bag]) as reader:   # no default store: the bag's definitions alone
         conns = [c for c in reader.connections if c.topic == "/rheo/pool"]
-        last = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)][-1]
-    assert list(last.experiments) == last_pool["experiments"]
-    assert np.allclose(last.values, list(last_pool["params"].values()), rtol=1e-12)
+        read = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
+    [same] = [m for m in read if list(m.experiments) == pool["experiments"]][-1:]
+    assert np.allclose(same.values, list(pool["params"].values()), rtol=1e-12)
+    assert np.allclose(mine[-1].values, same.values, rtol=0)
 
 
 def readme_client() -> str:
