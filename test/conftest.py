@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import fcntl
 import os
+import re
 import tempfile
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
@@ -48,6 +50,14 @@ def reserve_domain() -> int:
         return domain
     raise RuntimeError(f"every DDS domain in {DOMAINS} is held by a running test process")
 
+
+
+def readme_block(language: str, marker: str) -> str:
+    """The README's one ``language`` block that holds ``marker`` (its examples are tests)."""
+    text = (REPO / "README.md").read_text()
+    blocks = re.findall(rf"^( *)```{language}\n(.*?)^\1```", text, flags=re.S | re.M)
+    [code] = [textwrap.dedent(body) for _, body in blocks if marker in body]
+    return code
 
 @pytest.fixture(scope="session")
 def ros_env() -> Callable[[], dict[str, str]]:

@@ -3,18 +3,16 @@
 import json
 import math
 import os
-import re
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
-from conftest import TRUTH
+from conftest import TRUTH, readme_block
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.action import ActionClient
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -409,10 +407,7 @@ def assert_outputs_decode(bag: Path, pool: dict) -> None:
 
 def readme_client() -> str:
     """The README's action client (the python block that makes an ActionClient for Identify)."""
-    text = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(r"^( *)```python\n(.*?)^\1```", text, flags=re.S | re.M)
-    [code] = [textwrap.dedent(body) for _, body in blocks if "ActionClient(node, Identify" in body]
-    return code
+    return readme_block("python", "ActionClient(node, Identify")
 
 
 def assert_trusted_and_right(r) -> None:

@@ -12,13 +12,13 @@ import json
 import re
 import subprocess
 import sys
-import textwrap
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import readme_block
 from scipy.signal import lsim, lti
 
 from rheo_ros.app.analyze import analyze
@@ -102,14 +102,6 @@ def test_the_report_shows_what_remains_with_the_fitted_shape_over_it(lagging):
     assert '<figure class="remaining" id="remaining">' in page
 
 
-def readme_block(language: str, marker: str) -> str:
-    """The README's ``language`` block that holds ``marker``."""
-    text = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(rf"^( *)```{language}\n(.*?)^\1```", text, flags=re.S | re.M)
-    [code] = [textwrap.dedent(body) for _, body in blocks if marker in body]
-    return code
-
-
 def install_plugin(root: Path, module: str, source: str, entry_points: str) -> Path:
     """A plugin package of one module (``source``) whose ``entry_points`` (the TOML table's
     lines) register it, installed by pip into ``root``/site; returns that folder."""
@@ -161,7 +153,7 @@ def test_an_effect_with_memory_runs_in_the_streaming_simulator_as_in_the_whole_r
     """The simulator node steps sample by sample; ``rheo simulate`` runs the whole
     profile. With the README's lag (memory: the whole history) both give the same images
     (measured: identical), and the lag is the one scipy's lsim gives of the lag-free run's
-    forces through the pull and the keep (17 % of the peak force), to 1e-9 of the peak."""
+    forces through the pull and the keep (17 % of the peak force), to 1e-6 of the peak."""
     lag = {"effects.sensor_lag.time": 1.0, "effects.sensor_lag.share": 0.3}
     base = {"stage.depth": 0.004, "stage.velocity": 0.001, "stage.keep_time": 3.0, "stage.release_time": 3.0,
             "simulator.refine": 2}
@@ -184,14 +176,14 @@ def test_an_effect_with_memory_runs_in_the_streaming_simulator_as_in_the_whole_r
     expected = 0.7 * free.force + 0.3 * lsim_lag
     peak = np.abs(free.force).max()
     assert np.abs(lagged.force - free.force)[held].max() > 0.05 * peak      # a visible lag
-    assert np.abs(lagged.force - expected)[held].max() < 1e-9 * peak         # measured 1.7e-15
+    assert np.abs(lagged.force - expected)[held].max() < 1e-6 * peak         # measured 1.7e-15
 
 
 def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_parameters_right(lagging, lag_plugin):
     """The same generator bag with the README's lag installed as a plugin: the diagnosis
     names sensor_lag, the model is adequate and explained, and the lag's time and share
-    and E, c1, c2 come back within 3 std of the generator's truth (measured: within 0.16
-    std, the time 0.07 % off; the generator's lag by scipy's lsim, the plugin's by the
+    and E, c1, c2 come back within 3 std of the generator's truth (measured: within 0.52
+    std, c2 the farthest, the time 0.07 % off; the generator's lag by scipy's lsim, the plugin's by the
     README's own formula; with every reading's time given to the lag - before, the fit
     gave it only the readings away from the phase boundaries and the share came out 1.6 %,
     15 std, high)."""

@@ -129,9 +129,9 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
     markers = [c for c in cells if c["signal"] == "markers"]
     force = [c for c in cells if c["signal"] != "markers"]   # the segments and their total
     residual = record.force.sum(axis=1) - fit.prediction_total
-    noise = difference_noise(residual, away_from_boundaries(record.force_t, record.profile()))[0]
-    shapes = {}
     away = away_from_boundaries(record.force_t, record.profile())
+    noise = difference_noise(residual, away)[0]
+    shapes = {}
     if np.isfinite(noise) and noise > 0:
         for phase in record.profile().phases:
             # Away from the phase boundaries, where the model jumps (as the fit leaves them out).
