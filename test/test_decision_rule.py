@@ -21,6 +21,7 @@ from rheo_ros.diagnosis.decision import (
     _excess,
     _finite,
     judge,
+    leftover,
 )
 
 
@@ -240,7 +241,7 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
             {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
              "eligible": False},
         ],
-        "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [],
+        "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [],
     }
     assert Diagnosis("m", True, None, (), "fine").undecided == ()
 
@@ -285,6 +286,13 @@ def test_effects_that_leave_a_misfit_or_a_degenerate_fit_are_the_closest_not_mis
     v = Verdict.of([first, degenerate])
     assert (v.explained, v.missing_effects, v.closest, v.degenerate) == (False, (), ("relaxation_branch",), ("c1",))
     assert "the fit is degenerate (c1 collapsed)" in v.evidence
+    # Adequate by the ratio rule, but the markers' release still misfits by 45 sd: not explained.
+    leaves = Diagnosis("three_element+relaxation_branch", True, None, (), "step two.", (),
+                       leftover=("markers in the release (45 sd)",))
+    v = Verdict.of([first, leaves])
+    assert (v.explained, v.missing_effects, v.closest, v.leftover) == (
+        False, (), ("relaxation_branch",), ("markers in the release (45 sd)",))
+    assert "with relaxation_branch the model still misfits (markers in the release (45 sd))" in v.evidence
     fits = Diagnosis("three_element+relaxation_branch", True, None, (), "step two.", ())
     v = Verdict.of([first, fits])
     assert (v.explained, v.missing_effects, v.closest) == (True, ("relaxation_branch",), ())
@@ -363,3 +371,18 @@ def test_an_effect_on_the_markers_is_judged_on_the_markers(monkeypatch):
     monkeypatch.setattr(decision, "effect_class", lambda effect_id, form=None: SimpleNamespace(
         shows_in=("keep",), form="", signals=("force",)))
     assert not judge(before, after, "camera").significant   # on the force it explains nothing
+
+
+def test_leftover_names_each_phase_and_signal_that_misfits_beyond_five_sd():
+    """A chi-square per phase and signal against its expectation: force pooled over the
+    segments, markers on their own; 5 sd of the chi-square (sqrt(2n)) is the line."""
+    n = 10_000
+    line = n + EXCESS_SIGMAS * np.sqrt(2 * n)
+
+    def fit(chi):   # chi-square by (signal, phase)
+        return SimpleNamespace(phase_chi2=lambda phases, signals: (chi.get((signals[0], phases[0]), n), n))
+
+    assert leftover(fit({})) == ()
+    assert leftover(fit({("markers", "release"): line - 1, ("force", "pull"): line - 1})) == ()
+    got = leftover(fit({("markers", "release"): n + 45 * np.sqrt(2 * n), ("force", "keep"): line + 20}))
+    assert got == ("force in the keep (5.14 sd)", "markers in the release (45 sd)")

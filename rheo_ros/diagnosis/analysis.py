@@ -143,7 +143,7 @@ class Analysis:
             "adequate": adequate, "adequate_model": finals.pop() if adequate and len(finals) == 1 else None,
             "explained": None if any(v.explained is None for v in verdicts) else all(v.explained for v in verdicts),
             "closest": list(dict.fromkeys(e for v in verdicts for e in v.closest)), "remaining": None,
-            "degenerate": [],   # each push's: experiments
+            "degenerate": [], "leftover": [],   # each push's: experiments
             "evidence": " ".join(f"Experiment {k}: {v.evidence}" for k, v in zip(numbers, verdicts)),
             "experiments": list(numbers),
         }
@@ -177,6 +177,7 @@ class Analysis:
         diagnosis["explained"] = verdict.explained
         diagnosis["closest"] = list(verdict.closest)
         diagnosis["degenerate"] = list(verdict.degenerate)
+        diagnosis["leftover"] = list(verdict.leftover)
         diagnosis["remaining"] = self.what_remains()
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
         diagnosis["evidence"] = verdict.evidence if self.diagnoses else "not diagnosed (--no-discover)"

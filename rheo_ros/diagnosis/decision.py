@@ -25,9 +25,11 @@ diagnosis says so and names the experiments that would.
 
 The effects the loop added are named missing only when they explain the data
 (``Verdict.explained``): with them the model fits within the noise (the rule that calls
-a model adequate) and the fit is not degenerate (``collapsed``: no base parameter the
+a model adequate), the fit is not degenerate (``collapsed``: no base parameter the
 base model determined run off to a bound by an added effect, no Voigt time below the
-sampling interval). Otherwise the catalogue does not explain these data: nothing is
+sampling interval), and no phase of either signal, force or markers, still misfits by more
+than ``EXCESS_SIGMAS`` (``leftover``: a pair of effects that fits a sensor's lag in the
+force moves the markers' recovery where the specimen did not). Otherwise the catalogue does not explain these data: nothing is
 named, the effects added are the closest (``Verdict.closest``), and what the last model
 leaves is described (``diagnosis.remaining``).
 """
@@ -110,6 +112,8 @@ class Diagnosis:
         undecided: the effects the data cannot tell apart (empty when decided).
         degenerate: the judged model's parameters that collapsed once effects were added
             (``collapsed``; set by ``discover`` on its last diagnosis).
+        leftover: the signals and phases the judged model, with effects added, still
+            misfits (``leftover``; set by ``discover`` on its last diagnosis).
     """
 
     model: str
@@ -119,6 +123,7 @@ class Diagnosis:
     evidence: str
     undecided: tuple[str, ...] = ()
     degenerate: tuple[str, ...] = ()
+    leftover: tuple[str, ...] = ()
 
     def to_json(self) -> dict:
         return {
@@ -126,6 +131,7 @@ class Diagnosis:
             "candidates": [{"effect": c.effect, "form": c.form, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
                             "explained": _finite(c.explained), "eligible": c.eligible} for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
+            "leftover": list(self.leftover),
         }
 
 
@@ -143,10 +149,11 @@ class Verdict:
         candidates: every effect tried on the base model, best BIC first.
         evidence: the paragraphs of every step, in order, and the final word.
         explained: the last model (the base, or with the effects added) fits within the
-            noise and is not degenerate (None: not diagnosed). False with effects added:
+            noise, is not degenerate and leaves no phase misfit (None: not diagnosed). False with effects added:
             the catalogue does not explain these data.
         closest: the effects the loop added when they do not explain the data.
         degenerate: the last model's collapsed parameters (``collapsed``).
+        leftover: where the last model, with effects added, still misfits (``leftover``).
     """
 
     adequate: bool | None
@@ -157,6 +164,7 @@ class Verdict:
     explained: bool | None = None
     closest: tuple[str, ...] = ()
     degenerate: tuple[str, ...] = ()
+    leftover: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, diagnoses: Sequence[Diagnosis]) -> Verdict:
@@ -164,17 +172,19 @@ class Verdict:
             return cls(None, (), (), (), "not diagnosed")
         last = diagnoses[-1]
         added = tuple(d.missing_effect for d in diagnoses if d.missing_effect)
-        explained = bool(last.adequate) and not last.degenerate
+        explained = bool(last.adequate) and not last.degenerate and not last.leftover
         evidence = " ".join(d.evidence for d in diagnoses)
         if added and not explained:
             why = (f"the fit is degenerate ({', '.join(last.degenerate)} collapsed)" if last.degenerate
-                   else f"with {' and '.join(added)} the model still misfits")
+                   else f"with {' and '.join(added)} the model still misfits"
+                   + (f" ({', '.join(last.leftover)})" if last.leftover else ""))
             evidence += (f" Final verdict: the catalogue does not explain these data: {why}. "
                          f"{', '.join(added)} is the closest, not the missing effect; the three-element "
                          "parameters are biased by what is missing (see remaining).")
         return cls(adequate=bool(last.adequate), missing_effects=added if explained else (),
                    undecided=last.undecided, candidates=diagnoses[0].candidates, evidence=evidence,
-                   explained=explained, closest=() if explained else added, degenerate=last.degenerate)
+                   explained=explained, closest=() if explained else added, degenerate=last.degenerate,
+                   leftover=last.leftover)
 
 
 def _finite(x: float) -> float | None:
@@ -212,6 +222,22 @@ def collapsed(fit: ModelFit, base: ModelFit, sample_interval: float) -> tuple[st
            if np.isfinite(base_std.get(n, np.inf)) and not np.isfinite(std.get(n, np.inf))]
     if "c1" not in out and p["c1"] / p["E"] < sample_interval:
         out.append("c1")
+    return tuple(out)
+
+
+def leftover(fit: ModelFit) -> tuple[str, ...]:
+    """Where ``fit`` still misfits, phase by phase and signal by signal (force: the
+    segments together; markers): a chi-square over the noise by more than
+    ``EXCESS_SIGMAS`` of its std, each as "<signal> in the <phase> (<excess> sd)". The
+    base model is judged by the coarser ratio rule (``misfit_limit``); a model with
+    effects added must explain every phase, the markers too: an effect the force alone
+    asks for must not leave the markers' recovery wrong."""
+    out = []
+    for signal in ("force", "markers"):
+        for phase in PHASES:
+            excess = _excess(*fit.phase_chi2((phase,), (signal,)))
+            if excess > EXCESS_SIGMAS:
+                out.append(f"{signal} in the {phase} ({excess:.3g} sd)")
     return tuple(out)
 
 

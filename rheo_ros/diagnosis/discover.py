@@ -19,6 +19,7 @@ from rheo_ros.diagnosis.decision import (
     Diagnosis,
     collapsed,
     judge,
+    leftover,
     phase_excess,
     sample_interval,
 )
@@ -182,7 +183,8 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
     while True:
         verdict = diagnose(record, forward, models[-1], candidates, noise, progress, workers)
         if len(models) > 1:   # effects added: did they leave the base model whole?
-            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], sample_interval(record)))
+            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], sample_interval(record)),
+                              leftover=leftover(models[-1]))
         verdicts.append(verdict)
         if verdict.missing_effect is None or len(models) > limit:
             return models, verdicts

@@ -84,6 +84,11 @@ class StageNode(Node):
         self.diagnoses: list[Diagnosis] = []
         self.create_subscription(Diagnosis, DIAGNOSIS_TOPIC, self.diagnoses.append, LATCHED_QOS, callback_group=group)
         self.fits = params["estimator.fit"]   # no whole-record fit: no covariance to pool
+        # After a goal's "new" hint the stage holds at rest this long on its own clock: the
+        # estimator takes the markers' starting positions from the data before each pull,
+        # which must show the new block only (in simulation the block is swapped when the
+        # hint arrives; a swap inside that window moved c1 -6 std).
+        self.new_object_rest_ns = round((params["estimator.pre_contact"] + 0.5) * 1e9)
         self.pools: list[Pool] = []
         self.create_subscription(Pool, POOL_TOPIC, self.pools.append, LATCHED_QOS, callback_group=group)
         self.hints = self.create_publisher(ObjectHint, OBJECT_TOPIC, LATCHED_QOS)
@@ -191,8 +196,17 @@ class StageNode(Node):
         # push's c2 came out 24 % high. Not wait_for_all_acked: across processes Fast DDS
         # acknowledges at its heartbeat (measured 0.2 s to over 2 s) while the message itself
         # arrives within milliseconds.
-        self.hints.publish(object_hint_message(self.types, self.now_ns, goal.object))
+        stamp = self.now_ns
+        self.hints.publish(object_hint_message(self.types, stamp, goal.object))
         time.sleep(self.HINT_SETTLE)
+        if goal.object == "new":
+            wall_limit = time.monotonic() + self.FIT_TIMEOUT   # a clock that stopped must not hold the goal
+            while self.now_ns < stamp + self.new_object_rest_ns and time.monotonic() < wall_limit:
+                if handle.is_cancel_requested:
+                    handle.canceled()
+                    result.message = "cancelled before the stage moved"
+                    return result
+                time.sleep(0.02)
         self.start(profile)
         asked = ", ".join([f"{k.removeprefix('stage.')} {v:g}" for k, v in changes.items()]
                           + [f"object {goal.object}"] * bool(goal.object))

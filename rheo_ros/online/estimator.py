@@ -446,9 +446,13 @@ class OnlineEstimator:
     def object_of(self, profile: StageProfile) -> str:
         """The hint for the push ``profile`` describes: the last one stamped after the push
         before it started and no later than its own pull's start ("" without one)."""
+        return self._hint_of(profile)[1]
+
+    def _hint_of(self, profile: StageProfile) -> tuple[float, str]:
+        """``object_of`` with the hint's stamp (-inf without one)."""
         after = profile.before[-1].t_pull_start if profile.before else -np.inf
-        said = [k for t, k in self.hints if after < t <= profile.t_pull_start]
-        return said[-1] if said else ""
+        said = [(t, k) for t, k in self.hints if after < t <= profile.t_pull_start]
+        return said[-1] if said else (-np.inf, "")
 
     def _store(self, stream: str, t: float, value: np.ndarray) -> bool:
         if not (np.isfinite(t) and np.all(np.isfinite(value))) or not self.streams[stream].add(t, value):
@@ -569,6 +573,13 @@ class OnlineEstimator:
         elif e.name == "release":
             profile = replace(profile, release_time=max(e.t_end - profile.t_keep_end, 0.0))
         t0 = profile.t_pull_start - self.config.pre_contact
+        if kind == "new":
+            # Data before the robot said "new" may show the object it took away: the
+            # markers' starting positions come from the new one only, where it has frames.
+            t_hint = self._hint_of(profile)[0]
+            markers_t = self.streams["markers"].window(t_hint, profile.t_pull_start)[0]
+            if np.any(markers_t < profile.t_pull_start):
+                t0 = max(t0, t_hint)
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
         self.sensor, force = self.setup.sensor(self.readout, parts["force"][1].reshape(-1, self.mesh.cols), markers)

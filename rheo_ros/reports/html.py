@@ -131,7 +131,7 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
     verdict = Verdict.of(result.diagnoses)
     if verdict.closest:
         how = (f"is degenerate ({', '.join(verdict.degenerate)} collapsed)" if verdict.degenerate
-               else "still misfits")
+               else "still misfits" + (f" ({', '.join(verdict.leftover)})" if verdict.leftover else ""))
         return (f"The catalogue does not explain these data: with {', '.join(verdict.closest)}, the closest, "
                 f"{final} {how}; no effect is named missing and the three-element parameters are biased "
                 "by what is missing (see what remains).", False)
