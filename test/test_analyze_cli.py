@@ -4,6 +4,7 @@ never a traceback; on a good bag, the contract's JSON."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -237,3 +238,21 @@ def test_play_leaves_no_temporary_folder(tmp_path):
                           "/nobody"], capture_output=True, text=True, timeout=120, env={**os.environ, "TMPDIR": str(tmp_path)})
     assert out.returncode == 2 and "/nobody: not in the bag" in out.stderr, out.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_progress_bar_counts_the_candidates_and_logs_a_line_per_step_off_a_terminal(capsys):
+    """rich's bar (issue 22): "trying k/n" is the k-th candidate under way, "tried k/n" k
+    done; off a terminal (a log, CI) each step is a line with the elapsed time."""
+    from rheo_ros.app.cli import ProgressBar
+
+    bar = ProgressBar()
+    bar("reading bag")
+    bar("trying three_element+adhesion (2/4)")
+    assert (bar._progress.tasks[0].completed, bar._progress.tasks[0].total) == (1, 4)
+    bar("tried three_element+sensor_drift (3/4)")
+    assert (bar._progress.tasks[0].completed, bar._progress.tasks[0].total) == (3, 4)
+    bar.close()
+    lines = capsys.readouterr().err.splitlines()
+    assert [re.sub(r"\d+\.\d s", "T", line) for line in lines] == [
+        "rheo analyze:   T  reading bag", "rheo analyze:   T  trying three_element+adhesion (2/4)",
+        "rheo analyze:   T  tried three_element+sensor_drift (3/4)"]

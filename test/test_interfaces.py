@@ -276,3 +276,27 @@ def test_rclpy_cdr_decodes_with_rosbags_from_the_msg_text():
     assert (dec.experiment, dec.name, dec.samples) == (3, "keep", 77)
     assert (dec.start.sec, dec.end.sec, dec.end.nanosec) == (1, 2, 500)
     assert (dec.header.stamp.sec, dec.header.frame_id) == (0, "")
+
+
+def test_a_diagnosis_sends_parameters_at_a_bound_with_no_std_and_where_the_model_still_misfits():
+    """Issue 24 online: the last model's parameters at a bound go out with an infinite std
+    and are listed (``at_bound``), as ``rheo analyze`` gives them a null std; ``leftover``
+    says where the model with effects added still misfits (then the verdict is unexplained)."""
+    from types import SimpleNamespace
+
+    from rheo_ros.diagnosis.decision import Verdict
+    from rheo_ros.io.messages import MessageTypes, diagnosis_message, read_diagnosis
+    from rheo_ros.online.estimator import OnlineDiagnosis
+
+    params = {"E": 3.3e4, "c1": 1.0e-6, "c2": 3e7, "gamma": 0.33, "adhesion.fraction": 0.1, "adhesion.time": 30.0}
+    std = {"E": 20.0, "c1": 1e-12, "c2": 1e5, "gamma": 1e-3, "adhesion.fraction": 0.01, "adhesion.time": 1.0}
+    models = [SimpleNamespace(name=n, estimate=SimpleNamespace(params=params, std=std), forms={}, rmse_force=0.1,
+                              bic=1.0) for n in ("three_element", "three_element+adhesion")]
+    verdict = Verdict(adequate=True, missing_effects=(), undecided=(), candidates=(), evidence="e", explained=False,
+                      closest=("adhesion",), leftover=("markers in the release (45 sd)",))
+    d = OnlineDiagnosis.of(4, 12.5, models, verdict, bound=("c1", "adhesion.time"))
+    got = read_diagnosis(diagnosis_message(MessageTypes.rclpy(), d))
+    assert got["at_bound"] == ["c1", "adhesion.time"] and got["leftover"] == ["markers in the release (45 sd)"]
+    assert got["std"]["c1"] == got["std"]["adhesion.time"] == np.inf
+    assert got["std"]["E"] == 20.0 and got["std"]["adhesion.fraction"] == 0.01
+    assert got["verdict"] == "unexplained" and got["undetermined"] == ["c1"]

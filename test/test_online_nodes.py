@@ -68,6 +68,11 @@ class Graph:
                 p.kill()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
+        # Never a traceback, the shutdown by Ctrl-C included (checked when the test itself
+        # did not fail: its own error comes first).
+        broken = {p.name: p.read_text()[-1500:] for p in self.tmp.glob("*.log") if "Traceback" in p.read_text()}
+        if broken and sys.exc_info()[0] is None:
+            pytest.fail(f"a traceback in {', '.join(broken)}: {broken}")
 
 
 @pytest.fixture(scope="module")

@@ -99,33 +99,36 @@ def _run(args: argparse.Namespace) -> int:
 
 
 class ProgressBar:
-    """One line on stderr, redrawn in place on a terminal (a line per step otherwise):
-    elapsed time, a bar of the diagnosis's candidates, the step."""
-
-    WIDTH = 20
+    """rich's progress bar on stderr on a terminal (the diagnosis's candidates done, the
+    elapsed time, the step); elsewhere (a log, CI) a line per step with the elapsed time."""
 
     def __init__(self) -> None:
-        import time
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        self._clock = time.monotonic
-        self._start = self._clock()
-        self._tty = sys.stderr.isatty()
+        self.console = Console(stderr=True)
+        self._progress = Progress(TextColumn("rheo analyze"), BarColumn(), TimeElapsedColumn(),
+                                  TextColumn("{task.description}"), console=self.console)
+        self._task = self._progress.add_task("", total=None)
+        if self.console.is_terminal:
+            self._progress.start()
 
     def __call__(self, step: str) -> None:
         import re
 
         done = re.search(r"\((\d+)/(\d+)\)", step)
-        filled = round(self.WIDTH * (int(done[1]) - 1) / int(done[2])) if done else 0
-        bar = "#" * filled + "." * (self.WIDTH - filled)
-        line = f"rheo analyze: [{bar}] {self._clock() - self._start:5.1f} s  {step}"
-        if self._tty:
-            print(f"\r\x1b[K{line}", end="", file=sys.stderr, flush=True)
+        if done:   # "trying ... (k/n)": the k-th of n candidates under way; "tried ... (k/n)": k done
+            finished = int(done[1]) - (not step.startswith("tried"))
+            self._progress.update(self._task, description=step, completed=finished, total=int(done[2]))
         else:
-            print(line, file=sys.stderr, flush=True)
+            self._progress.update(self._task, description=step)
+        if not self.console.is_terminal:
+            elapsed = self._progress.tasks[0].elapsed or 0.0
+            print(f"rheo analyze: {elapsed:5.1f} s  {step}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
-        if self._tty:
-            print(file=sys.stderr)
+        if self.console.is_terminal:
+            self._progress.stop()
 
 
 def _analyze(args: argparse.Namespace) -> int:

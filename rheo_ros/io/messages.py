@@ -228,6 +228,7 @@ def diagnosis_message(types: MessageTypes, d: Any) -> Any:
         rmse_force=types.float64s(d.rmse_force), bic=types.float64s(d.bic), candidates=list(d.candidates),
         delta_bic=types.float64s(d.delta_bic), model=d.models[-1], names=list(d.names),
         values=types.float64s(d.values), std=types.float64s(d.std), evidence=d.evidence,
+        at_bound=list(d.at_bound), leftover=list(d.leftover),
     )
     _stamp(msg, int(round(d.stamp * 1e9)))
     return msg
@@ -245,6 +246,7 @@ def read_diagnosis(msg: Any) -> dict[str, Any]:
         "candidates": dict(zip(msg.candidates, np.asarray(msg.delta_bic, float).tolist())),
         "model": msg.model, "params": dict(zip(names, np.asarray(msg.values, float).tolist())),
         "std": dict(zip(names, np.asarray(msg.std, float).tolist())), "evidence": msg.evidence,
+        "at_bound": list(msg.at_bound), "leftover": list(msg.leftover),
     }
 
 

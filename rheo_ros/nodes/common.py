@@ -88,6 +88,12 @@ def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Exec
         spinner.spin()
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
+    except RuntimeError:
+        # Ctrl-C or SIGTERM while a message was being taken: rclpy raises from the
+        # half-torn-down subscription ("Unable to convert call argument"). A shutdown,
+        # not a failure; with the context still up it is a real error.
+        if rclpy.ok():
+            raise
     except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
         reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc   # str(KeyError) adds quotes
         print(f"{sys.argv[0]}: error: {reason}", file=sys.stderr)

@@ -34,7 +34,7 @@ import numpy as np
 
 from rheo_ros.config.setup import Setup
 from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
-from rheo_ros.diagnosis.decision import Verdict
+from rheo_ros.diagnosis.decision import Verdict, at_bound
 from rheo_ros.diagnosis.discover import discover
 from rheo_ros.diagnosis.fits import ModelFit, assess
 from rheo_ros.experiment import PUSH_PHASES, StageProfile, check_object_hint
@@ -119,6 +119,8 @@ class OnlineDiagnosis:
     evidence: str
     final: Estimate | None = None   # the last model's fit (pooled with the other pushes')
     explained: bool = True          # Verdict.explained: the last model fits and is not degenerate
+    at_bound: tuple[str, ...] = ()  # the last model's parameters at a bound (no measurement: std inf)
+    leftover: tuple[str, ...] = ()  # where the last model, with effects added, still misfits
 
     @property
     def verdict(self) -> str:
@@ -136,9 +138,12 @@ class OnlineDiagnosis:
         return tuple(n for n, s in zip(self.names, self.std) if n in BASE_PARAMETERS and not np.isfinite(s))
 
     @classmethod
-    def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict) -> OnlineDiagnosis:
+    def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict,
+           bound: Sequence[str] = ()) -> OnlineDiagnosis:
+        """``bound``: the last model's parameters at a bound (``decision.at_bound``), sent
+        with an infinite std as ``rheo analyze`` reports them with none."""
         last = models[-1].estimate
-        std = last.std
+        std = {**last.std, **{n: np.inf for n in bound}}
         return cls(
             experiment=experiment, stamp=stamp, adequate=bool(verdict.adequate),
             missing_effects=verdict.missing_effects, undecided=verdict.undecided,
@@ -150,6 +155,7 @@ class OnlineDiagnosis:
             names=tuple(last.params), values=np.array(list(last.params.values())),
             std=np.array([std.get(n, np.inf) for n in last.params]),
             evidence=verdict.evidence, final=last, explained=bool(verdict.explained),
+            at_bound=tuple(bound), leftover=verdict.leftover,
         )
 
 
@@ -343,7 +349,8 @@ class PhaseIdentifier:
         verdict = Verdict.of(verdicts)
         if job.cut_short:
             verdict = replace(verdict, evidence=f"{job.warning()}. {verdict.evidence}")
-        return OnlineDiagnosis.of(job.event.experiment, float(rec.force_t[-1]), models, verdict)
+        return OnlineDiagnosis.of(job.event.experiment, float(rec.force_t[-1]), models, verdict,
+                                  at_bound(models[-1], base, rec))
 
     def _update(self, job: Job, est: Estimate, rmse: float, unseen: str = "") -> Update:
         rec, e = self._record(job), job.event
