@@ -511,7 +511,14 @@ def test_undetermined_gamma_at_its_bound(short_case):
         est = Estimate({"E": 2.0, "c1": 8.0, "c2": 40.0, "gamma": gamma}, "x", (), residual_rms={})
         out = pl.undetermined(rec, est, config)
         assert ("gamma" in out) is bound
+        # A closed form solves E, c1, c2 with gamma: pinned at its bound, they are biased too.
+        assert all((n in out) is bound for n in ("E", "c1", "c2"))
+        assert not bound or out["E"].startswith(f"solved with gamma at its bound ({gamma:.4g}), which biases it")
     assert out == {}
+    # A fit's E, c1, c2 come with their own std: gamma at its bound does not open them.
+    fit = Estimate({"E": 2.0, "c1": 8.0, "c2": 40.0, "gamma": 0.499}, "x", (), residual_rms={},
+                   covariance=np.diag([1e-4, 1e-3, 1e-2, 1e-6]))
+    assert set(pl.undetermined(rec, fit, config)) == {"gamma"}
     est = Estimate({"E": 2.0, "c1": 8.0, "c2": 40.0, "gamma": 0.499}, "x", ())
     assert pl.undetermined(rec, est, config)["gamma"] == (
         "the equations put it at its bound (0.499): no solution inside the physical range; a deeper push "

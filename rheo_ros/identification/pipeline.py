@@ -318,6 +318,12 @@ def undetermined(record: Record, est: Estimate, config: EstimatorConfig, unseen:
     if "gamma" in est.params and not -0.98 < est.params["gamma"] < 0.499:
         out["gamma"] = (f"the equations put it at its bound ({est.params['gamma']:.4g}): no solution "
                         "inside the physical range; a deeper push determines it")
+        if est.covariance is None:
+            # The closed form solves E, c1, c2 with gamma (K_gamma, eq. 14-17): pinned at
+            # its bound, it biases them (a 0.4 s pull: E +24 %).
+            for n in ("E", "c1", "c2"):
+                out[n] = (f"solved with gamma at its bound ({est.params['gamma']:.4g}), which biases it; "
+                          "a deeper or slower push determines it (the whole-record fit does not need it)")
     if est.covariance is None:
         rel = est.residual_rms.get("rate_rel_std", 0.0)
         if not rel <= config.rate_std:
