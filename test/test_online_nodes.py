@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -203,6 +204,9 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
     g.node.create_subscription(DiagnosticArray, "/diagnostics",
                                lambda m: statuses.extend(s for s in m.status if s.name.endswith("estimator")), 10)
     bad = g.node.create_publisher(Image, "/tactile/pressure", 10)
+    from sensor_msgs.msg import JointState
+    stage_stamps = []
+    g.node.create_subscription(JointState, "/stage/joint_states", lambda m: stage_stamps.append(m.header.stamp), 10)
     try:
         est = g.start("estimator", "--ros-args", "--params-file", str(short_bag / "params.yaml"),
                       "-p", "estimator.stale_after:=1.0")
@@ -230,11 +234,30 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
                      "a WARN naming the NaN marker frame")
         figures = {v.key: v.value for v in statuses[-1].values}
         assert (figures["bad /markers/mesh"], figures["out of order /markers/mesh"]) == ("1", "0"), figures
+        # The markers in mm (a 4 x 4 cm grid read as metres) and a stage sample 10 s back
+        # (a clock jump): refused, and named as rheo analyze names them (online.checks).
+        mm = PoseArray(poses=[Pose() for _ in range(25)])
+        for k, pose in enumerate(mm.poses):
+            pose.position.x, pose.position.y = 10.0 * (k % 5), 10.0 * (k // 5)
+        markers.publish(mm)
+        g.spin_until(lambda: any("/markers/mesh: the markers span 40 across, the specimen is 0.08 m wide: not in m (mm?)"
+                                 in s.message for s in statuses), 20, "a WARN naming the markers' units")
+        g.spin_until(lambda: stage_stamps, 10, "stage samples")
+        back = JointState(name=["stage"], position=[0.0], velocity=[0.0])
+        back.header.stamp.sec, back.header.stamp.nanosec = stage_stamps[-1].sec - 10, stage_stamps[-1].nanosec
+        stage = g.node.create_publisher(JointState, "/stage/joint_states", 10)
+        g.spin_until(lambda: stage.get_subscription_count() > 1, 10, "the estimator subscribing to the stage")
+        stage.publish(back)
+        g.spin_until(lambda: any(re.search(r"/stage/joint_states: header stamps jump back 1\d\.\d+ s at [\d.]+ s "
+                                           r"\(a clock jump", s.message) for s in statuses), 20,
+                     "a WARN naming the clock jump")
+        figures = {v.key: v.value for v in statuses[-1].values}
+        assert (figures["bad /markers/mesh"], figures["bad /stage/joint_states"]) == ("2", "1"), figures
         # Good stage samples go on flowing: 1 s (estimator.stale_after) after the last bad
         # message the WARN no longer names them; the counts stay.
         g.spin_until(lambda: "bad message" not in statuses[-1].message, 20, "the bad-message WARN cleared")
         figures = {v.key: v.value for v in statuses[-1].values}
-        assert (figures["bad /tactile/pressure"], figures["bad /markers/mesh"]) == ("3", "1"), figures
+        assert (figures["bad /tactile/pressure"], figures["bad /markers/mesh"]) == ("3", "2"), figures
         assert est.poll() is None, "the estimator died on a bad message"
         play.send_signal(signal.SIGINT)
         play.wait(timeout=10)

@@ -15,8 +15,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from rheo_ros.config.setup import Setup, check_params, load_params
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
@@ -39,6 +37,7 @@ from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
+from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
 from rheo_ros.record import RecordError
@@ -62,46 +61,21 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
     return check_params(params, f"{path}: parameters")
 
 
-# A topic's header stamps going back by more than this (s) is a clock jump, not a reorder
-# (the core drops a message older than its stream's last, as a node does).
-CLOCK_JUMP = 0.5
-# Sizes further than this factor from the parameters' are in other units (mm for m).
-UNITS_FACTOR = 10.0
-
-
 def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
-    """The bag's measurement samples (``bag_samples``) with each frame's shape checked
-    against the parameters, each topic's stamps against clock jumps, the first marker
-    frame's extent and the stage's depth against the specimen's size (units), and a topic
-    with no message refused at the end.
+    """The bag's measurement samples (``bag_samples``), each through the estimator node's
+    checks (``online.checks.SampleCheck``: shapes, clock jumps, units), and a topic with no
+    message refused at the end.
 
     Raises:
         BagError: names the file, the topic and what is wrong.
     """
     counts = dict.fromkeys(TOPIC_OF, 0)   # the measurement topics must all be there (/rheo/object may not)
-    rows, cols = setup.tactile.rows, setup.tactile.cols
-    markers = setup.mesh.nodes.shape
-    width, height = setup.params["specimen.width"], setup.params["specimen.height"]
-    last: dict[str, float] = {}
+    check = SampleCheck(setup)
     for stream, t, data in bag_samples(bag):
-        if stream in TOPIC_OF and t < last.get(stream, -np.inf) - CLOCK_JUMP:
-            raise BagError(f"{bag}: {TOPIC_OF[stream]}: header stamps jump back {last[stream] - t:.3g} s at "
-                           f"{last[stream]:.3f} s (a clock jump: the record cannot be put in order)")
-        last[stream] = max(t, last.get(stream, -np.inf))
-        if stream == "stage" and data > height:
-            raise BagError(f"{bag}: {STAGE_TOPIC}: position {data:.4g} at {t:.3f} s is deeper than the specimen's "
-                           f"height ({height:g} m): not in m (mm?)")
-        if stream == "markers" and not counts["markers"] and data.shape == markers:
-            span = float(np.ptp(data[:, 0]))
-            if not width / UNITS_FACTOR < span < UNITS_FACTOR * width:
-                raise BagError(f"{bag}: {MARKERS_TOPIC}: the markers span {span:.4g} across, the specimen is "
-                               f"{width:g} m wide: not in m (mm?)")
-        if stream == "image" and data.shape != (rows, cols):
-            raise BagError(f"{bag}: {TACTILE_TOPIC}: image {data.shape[0]} x {data.shape[1]} at {t:.3f} s, "
-                              f"parameters say {rows} x {cols}")
-        if stream == "markers" and data.shape != markers:
-            raise BagError(f"{bag}: {MARKERS_TOPIC}: {data.shape[0]} markers at {t:.3f} s, "
-                              f"parameters say {markers[0]}")
+        if stream in TOPIC_OF:
+            problem = check.problem(stream, t, data)
+            if problem:
+                raise BagError(f"{bag}: {TOPIC_OF[stream]}: {problem}")
         counts[stream] = counts.get(stream, 0) + 1
         yield stream, t, data
     for stream in TOPIC_OF:

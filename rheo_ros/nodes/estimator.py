@@ -59,6 +59,7 @@ from rheo_ros.io.messages import (
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
+from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
 from rheo_ros.record import RecordError
@@ -84,6 +85,7 @@ class EstimatorNode(Node):
         params = declare_all(self)
         self.setup = Setup(params)
         self.core = OnlineEstimator(self.setup, self.setup.segmenter_config(), self.setup.estimator_config())
+        self.check = SampleCheck(self.setup)   # the samples rheo analyze would refuse, refused
         self.stale_after = params["estimator.stale_after"]
         self.types = MessageTypes.rclpy()
         self.create_subscription(JointState, STAGE_TOPIC, self.on_stage, SENSOR_QOS)
@@ -150,6 +152,9 @@ class EstimatorNode(Node):
             value = decode(msg)
             if not np.all(np.isfinite(value)):
                 raise MessageError("non-finite values")   # a bad message, not one out of order
+            problem = self.check.problem("image" if stream == "force" else stream, t, value)
+            if problem:   # as rheo analyze refuses it: a clock jump, a frame of another size, mm
+                raise MessageError(problem)
             events = add(t, value)
         except (MessageError, RecordError, ValueError) as exc:
             self.bad.bad(stream, f"{TOPICS[stream]}: {exc}")
@@ -188,17 +193,10 @@ class EstimatorNode(Node):
         self._feed("stage", msg, lambda m: read_joint_state(m)[0], self.core.add_stage)
 
     def on_tactile(self, msg: Image) -> None:
-        self._feed("force", msg, self._checked_image, self.core.add_image)
+        self._feed("force", msg, read_pressure_image, self.core.add_image)
 
     def on_markers(self, msg: PoseArray) -> None:
         self._feed("markers", msg, read_marker_array, self.core.add_markers)
-
-    def _checked_image(self, msg: Image) -> np.ndarray:
-        image = read_pressure_image(msg)
-        expected = (self.setup.tactile.rows, self.setup.tactile.cols)
-        if image.shape != expected:
-            raise MessageError(f"image {image.shape[0]} x {image.shape[1]}, parameters say {expected[0]} x {expected[1]}")
-        return image   # non-finite readings: _feed, as every stream's
 
     # -- identification lanes ------------------------------------------------------------
 

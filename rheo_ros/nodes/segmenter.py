@@ -32,7 +32,10 @@ from rheo_ros.io.messages import (
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
+from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
+
+CHECKED = {STAGE_TOPIC: "stage", TACTILE_TOPIC: "image", MARKERS_TOPIC: "markers"}   # SampleCheck's streams
 
 
 class SegmenterNode(Node):
@@ -41,6 +44,7 @@ class SegmenterNode(Node):
         params = declare_all(self)
         self.setup = Setup(params)
         self.core = PhaseSegmenter(self.setup.segmenter_config())
+        self.check = SampleCheck(self.setup)
         self.types = MessageTypes.rclpy()
         self.phases = self.create_publisher(Phase, PHASE_TOPIC, LATCHED_QOS)
         self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -57,10 +61,13 @@ class SegmenterNode(Node):
     def _feed(self, topic: str, msg, read, add) -> None:
         self.silence.heard("measurements")
         try:
-            value = read(msg)
+            value, t = read(msg), stamp_ns(msg) * 1e-9
             if not np.all(np.isfinite(value)):
                 raise MessageError("non-finite values")   # a bad message, not one out of order
-            events = add(stamp_ns(msg) * 1e-9, value)
+            problem = self.check.problem(CHECKED[topic], t, value)
+            if problem:   # as the estimator and rheo analyze refuse it
+                raise MessageError(problem)
+            events = add(t, value)
         except (MessageError, ValueError) as exc:
             self.bad.bad(topic, f"{topic}: {exc}")
             self.get_logger().warning(f"{self.bad.last}; message ignored", throttle_duration_sec=5.0)
