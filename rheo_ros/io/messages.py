@@ -226,7 +226,7 @@ def diagnosis_message(types: MessageTypes, d: Any) -> Any:
         missing_effects=list(d.missing_effects), forms=list(d.forms), undecided=list(d.undecided),
         verdict=d.verdict, undetermined=list(d.undetermined), models=list(d.models),
         rmse_force=types.float64s(d.rmse_force), bic=types.float64s(d.bic), candidates=list(d.candidates),
-        delta_bic=types.float64s(d.delta_bic), model=d.models[-1], names=list(d.names),
+        delta_bic=types.float64s(d.delta_bic), model=d.models[-1] if d.models else "", names=list(d.names),
         values=types.float64s(d.values), std=types.float64s(d.std), evidence=d.evidence,
         at_bound=list(d.at_bound), leftover=list(d.leftover),
     )

@@ -285,10 +285,13 @@ class EstimatorNode(Node):
                 continue
             final = fit   # the push's final model, pooled with the earlier pushes'
             if self.core.config.diagnose:
+                stamp = float(job.record.force_t[-1])
                 if self.fit_jobs.holds(lambda item: item is not None and item[0].final):
                     # Seconds of work on a push the robot has moved on from, while a newer
                     # push's final estimate waits: that one's diagnosis is the one to have.
                     self.skipped_diagnoses += 1
+                    self._hand_out(OnlineDiagnosis.not_run(e.experiment, stamp, "skipped: a newer push's "
+                                                           "final estimate was waiting"), arrival)
                 else:
                     try:
                         diagnosis = self._in_worker("fit", "diagnose", job, fit)
@@ -296,6 +299,9 @@ class EstimatorNode(Node):
                         final = diagnosis.final or fit
                     except Exception as exc:
                         self._failed(job, exc)
+                        # Said on /rheo/diagnosis too: an identify goal waits for it.
+                        self._hand_out(OnlineDiagnosis.not_run(e.experiment, stamp, f"the diagnosis failed: {exc}"),
+                                       arrival)
             self._hand_out(self.core.pool(e.experiment, float(job.record.force_t[-1]), final), arrival)
 
     def publish_results(self) -> None:
@@ -333,6 +339,9 @@ class EstimatorNode(Node):
 
     def publish_verdict(self, d: OnlineDiagnosis) -> None:
         self.verdicts.publish(diagnosis_message(self.types, d))
+        if not d.diagnosed:   # the failure itself is already on /diagnostics (last_error)
+            self.get_logger().warning(f"experiment {d.experiment}: {d.evidence}")
+            return
         steps = " -> ".join(f"{m} ({r:.3g} N)" for m, r in zip(d.models, d.rmse_force))
         if d.missing_effects or d.undecided or not d.adequate:
             found = f"missing {', '.join(d.missing_effects)}" if d.missing_effects else "no effect found"

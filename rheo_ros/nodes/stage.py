@@ -267,6 +267,8 @@ class StageNode(Node):
         result.success, result.message = trusted(
             result.verdict, result.undetermined, result.missing_effects,
             [] if diagnosis is None else list(diagnosis.undecided))
+        if diagnosis is not None and diagnosis.verdict == "not_diagnosed":   # it could not run: why
+            result.message = f"{result.message}; {diagnosis.evidence}"
         # The pool follows the diagnosis at once (the same lane); the estimate stands without it.
         pool = self._wait_for(self.pools, estimate, handle, self.FIT_TIMEOUT) if self.fits else None
         if pool is not None:

@@ -121,13 +121,16 @@ class OnlineDiagnosis:
     explained: bool = True          # Verdict.explained: the last model fits and is not degenerate
     at_bound: tuple[str, ...] = ()  # the last model's parameters at a bound (no measurement: std inf)
     leftover: tuple[str, ...] = ()  # where the last model, with effects added, still misfits
+    diagnosed: bool = True          # False: the diagnosis could not run (``not_diagnosed``; evidence says why)
 
     @property
     def verdict(self) -> str:
         """adequate (the base model), missing_effect (found, and with it adequate),
         undecided (the data ask for an effect but cannot pin it down or tell two apart) or
         unexplained (the model misfits, or the effects added leave it degenerate: no
-        effect in the catalogue explains it)."""
+        effect in the catalogue explains it); not_diagnosed when it could not run."""
+        if not self.diagnosed:
+            return "not_diagnosed"
         if self.adequate and self.explained:
             return "missing_effect" if self.missing_effects else "adequate"
         return "undecided" if self.undecided else "unexplained"
@@ -136,6 +139,15 @@ class OnlineDiagnosis:
     def undetermined(self) -> tuple[str, ...]:
         """The base parameters of the last model the data do not pin down."""
         return tuple(n for n, s in zip(self.names, self.std) if n in BASE_PARAMETERS and not np.isfinite(s))
+
+    @classmethod
+    def not_run(cls, experiment: int, stamp: float, why: str) -> OnlineDiagnosis:
+        """A push's diagnosis that could not run (it failed, or a newer push's came first):
+        published all the same, so that whoever waits for it (the identify action) hears why."""
+        empty = np.zeros(0)
+        return cls(experiment=experiment, stamp=stamp, adequate=False, missing_effects=(), undecided=(), models=(),
+                   forms=(), rmse_force=empty, bic=empty, candidates=(), delta_bic=empty, names=(), values=empty,
+                   std=empty, evidence=f"not diagnosed: {why}", explained=False, diagnosed=False)
 
     @classmethod
     def of(cls, experiment: int, stamp: float, models: list[ModelFit], verdict: Verdict,
@@ -185,7 +197,7 @@ def trusted(verdict: str, undetermined: Sequence[str], missing_effects: Sequence
         return False, "the model misfits and no effect in the catalogue explains it"
     if verdict == "missing_effect":
         return True, f"identified with {', '.join(missing_effects)}"
-    return True, "identified" if verdict == "adequate" else "identified (not diagnosed)"
+    return True, "identified" if verdict == "adequate" else "identified (not diagnosed: the parameters decide)"
 
 
 @dataclass(frozen=True)
@@ -711,8 +723,13 @@ def estimate_stream(estimator: OnlineEstimator, messages: Iterable[tuple[str, fl
                     continue
                 final = fit
                 if diagnoses is not None and estimator.config.diagnose:
-                    diagnoses.append(estimator.identify.diagnose(job, fit))
-                    final = diagnoses[-1].final or fit
+                    try:
+                        diagnoses.append(estimator.identify.diagnose(job, fit))
+                        final = diagnoses[-1].final or fit
+                    except (RecordError, ValueError, np.linalg.LinAlgError) as exc:   # as the node says it
+                        errors.append(str(exc))
+                        diagnoses.append(OnlineDiagnosis.not_run(job.event.experiment, float(job.record.force_t[-1]),
+                                                                 f"the diagnosis failed: {exc}"))
                 if pools is not None:
                     pools.append(estimator.pool(job.event.experiment, float(job.record.force_t[-1]), final))
             except (RecordError, ValueError, np.linalg.LinAlgError) as exc:
