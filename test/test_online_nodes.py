@@ -236,28 +236,43 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
         assert (figures["bad /markers/mesh"], figures["out of order /markers/mesh"]) == ("1", "0"), figures
         # The markers in mm (a 4 x 4 cm grid read as metres) and a stage sample 10 s back
         # (a clock jump): refused, and named as rheo analyze names them (online.checks).
+        # Each sent once a second until named: a reader that has not matched the probe's
+        # new writer yet misses a message sent once (seen on a loaded machine).
+        def until_named(send, pattern: str, what: str) -> int:
+            sent = [0, -1.0]
+
+            def named() -> bool:
+                if any(re.search(pattern, s.message) for s in statuses):
+                    return True
+                if time.monotonic() - sent[1] > 1.0:
+                    send()
+                    sent[:] = [sent[0] + 1, time.monotonic()]
+                return False
+
+            g.spin_until(named, 20, what)
+            return sent[0]
+
         mm = PoseArray(poses=[Pose() for _ in range(25)])
         for k, pose in enumerate(mm.poses):
             pose.position.x, pose.position.y = 10.0 * (k % 5), 10.0 * (k // 5)
-        markers.publish(mm)
-        g.spin_until(lambda: any("/markers/mesh: the markers span 40 across, the specimen is 0.08 m wide: not in m (mm?)"
-                                 in s.message for s in statuses), 20, "a WARN naming the markers' units")
+        sent_mm = until_named(lambda: markers.publish(mm), re.escape(
+            "/markers/mesh: the markers span 40 across, the specimen is 0.08 m wide: not in m (mm?)"),
+            "a WARN naming the markers' units")
         g.spin_until(lambda: stage_stamps, 10, "stage samples")
         back = JointState(name=["stage"], position=[0.0], velocity=[0.0])
         back.header.stamp.sec, back.header.stamp.nanosec = stage_stamps[-1].sec - 10, stage_stamps[-1].nanosec
         stage = g.node.create_publisher(JointState, "/stage/joint_states", 10)
         g.spin_until(lambda: stage.get_subscription_count() > 1, 10, "the estimator subscribing to the stage")
-        stage.publish(back)
-        g.spin_until(lambda: any(re.search(r"/stage/joint_states: header stamps jump back 1\d\.\d+ s at [\d.]+ s "
-                                           r"\(a clock jump", s.message) for s in statuses), 20,
-                     "a WARN naming the clock jump")
+        sent_back = until_named(lambda: stage.publish(back), r"/stage/joint_states: header stamps jump back "
+                                r"\d+\.\d+ s at [\d.]+ s \(a clock jump", "a WARN naming the clock jump")
         figures = {v.key: v.value for v in statuses[-1].values}
-        assert (figures["bad /markers/mesh"], figures["bad /stage/joint_states"]) == ("2", "1"), figures
+        assert 2 <= int(figures["bad /markers/mesh"]) <= 1 + sent_mm, figures
+        assert 1 <= int(figures["bad /stage/joint_states"]) <= sent_back, figures
         # Good stage samples go on flowing: 1 s (estimator.stale_after) after the last bad
         # message the WARN no longer names them; the counts stay.
         g.spin_until(lambda: "bad message" not in statuses[-1].message, 20, "the bad-message WARN cleared")
         figures = {v.key: v.value for v in statuses[-1].values}
-        assert (figures["bad /tactile/pressure"], figures["bad /markers/mesh"]) == ("3", "2"), figures
+        assert figures["bad /tactile/pressure"] == "3" and int(figures["bad /markers/mesh"]) >= 2, figures
         assert est.poll() is None, "the estimator died on a bad message"
         play.send_signal(signal.SIGINT)
         play.wait(timeout=10)
