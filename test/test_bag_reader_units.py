@@ -4,6 +4,7 @@ refusal naming its file and topic. Mutation testing runs these (``./tasks mutati
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -240,3 +241,54 @@ def test_bag_repair_rebuilds_a_truncated_recording_and_refuses_what_is_not_one(t
     (tmp_path / "stub" / "stub.mcap").write_bytes(data[:200])
     with pytest.raises(BagError, match="stub.mcap: no complete message in the stream"):
         repair_bag(tmp_path / "stub")
+
+
+def chunks(bag: Path) -> list:
+    """Each chunk record of the bag's MCAP with its byte offset."""
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    (mcap,) = bag.glob("*.mcap")
+    out = []
+    with mcap.open("rb") as f:
+        records = iter(StreamReader(f, emit_chunks=True).records)
+        while True:
+            offset = f.tell()
+            record = next(records, None)
+            if record is None:
+                return out
+            if isinstance(record, Chunk):
+                out.append((offset, record))
+
+
+def test_every_chunk_carries_its_crc_and_a_corrupt_chunk_is_named_by_its_offset(tmp_path, contents):
+    """Issue 21: rosbags' writer leaves each chunk's CRC 0 (unchecked), and 4 kB of random
+    bytes over a chunk decoded as garbage. The package's bags carry the CRCs (rewritten
+    through mcap's writer, the messages unchanged); the reader checks them and names the
+    chunk: its byte offset and its time span. Compressed, the damage breaks the zstd frame;
+    uncompressed, one byte changed fails the CRC."""
+    run = run_of(contents, 200)
+    for name, compress in (("zstd", True), ("raw", False)):
+        bag = tmp_path / name
+        with BagWriter(bag, contents.params, compress=compress) as w:
+            from rheo_ros.io.messages import JointStateEncoder
+            enc = JointStateEncoder(w.types)
+            for t, d, v in zip(run.stage_t, run.stage_depth, run.stage_velocity):
+                w.write(STAGE_TOPIC, seconds_to_ns(t), enc(seconds_to_ns(t), d, v))
+        found = chunks(bag)
+        assert found and all(c.uncompressed_crc != 0 for _, c in found), name
+        stage = [v for s, _, v in bag_samples(bag) if s == "stage"]
+        np.testing.assert_array_equal(stage, run.stage_depth)
+        (mcap,) = bag.glob("*.mcap")
+        data = bytearray(mcap.read_bytes())
+        offset, chunk = found[0]
+        at = offset + 80   # inside the chunk's data, past its header (the record's 9 bytes, 5 fields)
+        if compress:
+            data[at:at + 64] = np.random.default_rng(0).bytes(64)
+        else:
+            data[at + 40] ^= 0x01
+        mcap.write_bytes(bytes(data))
+        span = f"({chunk.message_start_time * 1e-9:.3f}-{chunk.message_end_time * 1e-9:.3f} s)"
+        why = "cannot be decoded" if compress else "fails its CRC: its data were changed on disk"
+        with pytest.raises(BagError, match=re.escape(f"{mcap}: the chunk at byte {offset} {span} {why}")):
+            list(bag_samples(bag))

@@ -71,6 +71,7 @@ class BagWriter:
             self.store.register(get_types_from_msg(text, name))
         self.types = MessageTypes.rosbags(self.store)
         self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.compress = compress
         if compress:
             self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         if params is not None:
@@ -86,6 +87,8 @@ class BagWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.writer.close()
+        if exc[0] is None:
+            with_chunk_crcs(self.path / f"{self.path.name}.mcap", self.compress)
 
     def write(self, topic: str, t_ns: int, msg: Any) -> None:
         conn = self.connections[topic]
@@ -106,6 +109,67 @@ class BagWriter:
             storage.close_chunk()
         if storage is not None:
             storage.bio.flush()
+
+
+def with_chunk_crcs(mcap: Path, compress: bool = True) -> None:
+    """Rewrite ``mcap`` through mcap's writer, record for record, so that every chunk
+    carries the CRC of its data: rosbags' writer leaves them 0 (unchecked), and a chunk
+    overwritten on disk then decoded as garbage (``check_chunks`` names it instead)."""
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+
+    rewritten = mcap.with_name(mcap.name + ".crc")
+    with mcap.open("rb") as src, rewritten.open("wb") as dst:
+        writer = McapWriter(dst, compression=CompressionType.ZSTD if compress else CompressionType.NONE)
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for r in StreamReader(src).records:
+            if isinstance(r, Header):
+                writer.start(profile=r.profile, library=r.library)
+            elif isinstance(r, Schema):
+                schemas[r.id] = writer.register_schema(r.name, r.encoding, r.data)
+            elif isinstance(r, Channel):
+                channels[r.id] = writer.register_channel(r.topic, r.message_encoding, schemas.get(r.schema_id, 0),
+                                                         r.metadata)
+            elif isinstance(r, Message):
+                writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time, r.sequence)
+            elif isinstance(r, Metadata):
+                writer.add_metadata(r.name, r.metadata)
+        writer.finish()
+    rewritten.replace(mcap)
+
+
+def check_chunks(mcap: Path) -> None:
+    """Every chunk of ``mcap`` decompresses and matches its CRC (where it has one).
+
+    Raises:
+        BagError: names the file, the chunk's byte offset and its time span."""
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk
+    from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
+
+    with mcap.open("rb") as fh:
+        records = iter(StreamReader(fh, emit_chunks=True).records)
+        while True:
+            offset = fh.tell()
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except (McapError, EOFError, ValueError, struct_error):
+                return   # a damaged structure: rosbags' reader names it (bag_reader)
+            if not isinstance(record, Chunk):
+                continue
+            where = (f"{mcap}: the chunk at byte {offset} ({record.message_start_time * 1e-9:.3f}-"
+                     f"{record.message_end_time * 1e-9:.3f} s)")
+            try:
+                breakup_chunk(record, validate_crc=True)
+            except CRCValidationError:
+                raise BagError(f"{where} fails its CRC: its data were changed on disk") from None
+            except Exception as exc:   # zstandard's and the record decoders' own errors
+                raise BagError(f"{where} cannot be decoded ({type(exc).__name__}: {exc}): corrupt") from None
 
 
 def require_bag(path: str | Path) -> Path:
@@ -183,6 +247,7 @@ def repair_bag(path: str | Path, params: dict[str, Any] | None = None) -> dict[s
         for m in sorted(messages, key=lambda m: (m.log_time, m.sequence)):
             writer.write(conns[m.channel_id], m.log_time, m.data)
             counts[channels[m.channel_id].topic] += 1
+    with_chunk_crcs(rebuilt / f"{rebuilt.name}.mcap")
     # The killed file goes beside the bag (kept: nothing is thrown away), the rebuilt bag in its place.
     mcaps[0].rename(path.with_name(mcaps[0].name + ".killed"))
     (rebuilt / f"{rebuilt.name}.mcap").rename(rebuilt / f"{path.name}.mcap")
@@ -239,6 +304,8 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
 def bag_reader(path: Path) -> Iterator[AnyReader]:
     """rosbags' reader on a bag directory; what a damaged bag raises inside (rosbags
     raises several types: bad metadata bytes, truncated chunks) as a BagError naming it."""
+    for mcap in sorted(path.glob("*.mcap")):
+        check_chunks(mcap)
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
             yield reader
