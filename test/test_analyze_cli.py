@@ -137,7 +137,8 @@ CASES = {
     "missing topic": (without_markers, r"bag: /markers/mesh: no messages|bag: /stage/joint_states: no messages"),
     "not a bag": (lambda tmp: [str(tmp)], r"not a rosbag2 directory"),
     "truncated mcap": (lambda tmp: [str(damaged(tmp, "truncated"))], r"cannot read bag"),
-    "corrupted mcap": (lambda tmp: [str(damaged(tmp, "corrupted"))], r"cannot read bag"),
+    "corrupted mcap": (lambda tmp: [str(damaged(tmp, "corrupted"))],
+                       r"clean_short_keep\.mcap: the chunk at byte \d+ \([\d.]+-[\d.]+ s\) cannot be decoded .*: corrupt$"),
     "bad params file": (bad_params, r"tactile.rows"),
     "unknown effect": (lambda tmp: [str(BAGS / "clean_short_keep"), "--add", "gravity"], r"unknown effect 'gravity'"),
 }
