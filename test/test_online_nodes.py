@@ -235,7 +235,7 @@ def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag,
         figures = {v.key: v.value for v in statuses[-1].values}
         assert (figures["bad /markers/mesh"], figures["out of order /markers/mesh"]) == ("1", "0"), figures
         # The markers in mm (a 4 x 4 cm grid read as metres) and a stage sample 10 s back
-        # (a clock jump): refused, and named as rheo analyze names them (online.checks).
+        # (a clock jump): refused, and named as rheo analyze names them (io.checks).
         # Each sent once a second until named: a reader that has not matched the probe's
         # new writer yet misses a message sent once (seen on a loaded machine).
         def until_named(send, pattern: str, what: str) -> int:

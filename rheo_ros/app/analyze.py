@@ -33,11 +33,11 @@ from rheo_ros.identification.pipeline import (
     without_undetermined,
 )
 from rheo_ros.io.bag import bag_samples, read_params, require_bag
+from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
-from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
 from rheo_ros.record import RecordError
@@ -63,7 +63,7 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
 
 def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
     """The bag's measurement samples (``bag_samples``), each through the estimator node's
-    checks (``online.checks.SampleCheck``: shapes, clock jumps, units), and a topic with no
+    checks (``io.checks.SampleCheck``: shapes, clock jumps, units), and a topic with no
     message refused at the end.
 
     Raises:
@@ -73,7 +73,7 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
     check = SampleCheck(setup)
     for stream, t, data in bag_samples(bag):
         if stream in TOPIC_OF:
-            problem = check.problem(stream, t, data)
+            problem = check.problem(TOPIC_OF[stream], t, data)
             if problem:
                 raise BagError(f"{bag}: {TOPIC_OF[stream]}: {problem}")
         counts[stream] = counts.get(stream, 0) + 1

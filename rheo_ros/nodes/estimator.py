@@ -37,6 +37,7 @@ from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.config.setup import Setup
 from rheo_ros.identification.pipeline import ClosedForm
+from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.messages import (
     DIAGNOSIS_TOPIC,
     ESTIMATE_TOPIC,
@@ -59,7 +60,6 @@ from rheo_ros.io.messages import (
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.online.backlog import Backlog
-from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, supersedes
 from rheo_ros.online.worker import Worker, WorkerDied
 from rheo_ros.record import RecordError
@@ -152,7 +152,7 @@ class EstimatorNode(Node):
             value = decode(msg)
             if not np.all(np.isfinite(value)):
                 raise MessageError("non-finite values")   # a bad message, not one out of order
-            problem = self.check.problem("image" if stream == "force" else stream, t, value)
+            problem = self.check.problem(TOPICS[stream], t, value)
             if problem:   # as rheo analyze refuses it: a clock jump, a frame of another size, mm
                 raise MessageError(problem)
             events = add(t, value)
@@ -284,8 +284,8 @@ class EstimatorNode(Node):
             if not job.final or fit is None:
                 continue
             final = fit   # the push's final model, pooled with the earlier pushes'
+            stamp = float(job.record.force_t[-1])
             if self.core.config.diagnose:
-                stamp = float(job.record.force_t[-1])
                 if self.fit_jobs.holds(lambda item: item is not None and item[0].final):
                     # Seconds of work on a push the robot has moved on from, while a newer
                     # push's final estimate waits: that one's diagnosis is the one to have.
@@ -302,7 +302,7 @@ class EstimatorNode(Node):
                         # Said on /rheo/diagnosis too: an identify goal waits for it.
                         self._hand_out(OnlineDiagnosis.not_run(e.experiment, stamp, f"the diagnosis failed: {exc}"),
                                        arrival)
-            self._hand_out(self.core.pool(e.experiment, float(job.record.force_t[-1]), final), arrival)
+            self._hand_out(self.core.pool(e.experiment, stamp, final), arrival)
 
     def publish_results(self) -> None:
         while not self.outbox.empty():

@@ -17,6 +17,7 @@ from rheo_ros_interfaces.msg import Phase
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.config.setup import Setup
+from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     PHASE_TOPIC,
@@ -32,10 +33,7 @@ from rheo_ros.io.messages import (
 )
 from rheo_ros.nodes.common import NODE_OPTIONS, BadMessages, Silence, declare_all, diagnostic_array, run_node
 from rheo_ros.nodes.estimator import LATCHED_QOS, SENSOR_QOS
-from rheo_ros.online.checks import SampleCheck
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
-
-CHECKED = {STAGE_TOPIC: "stage", TACTILE_TOPIC: "image", MARKERS_TOPIC: "markers"}   # SampleCheck's streams
 
 
 class SegmenterNode(Node):
@@ -64,7 +62,7 @@ class SegmenterNode(Node):
             value, t = read(msg), stamp_ns(msg) * 1e-9
             if not np.all(np.isfinite(value)):
                 raise MessageError("non-finite values")   # a bad message, not one out of order
-            problem = self.check.problem(CHECKED[topic], t, value)
+            problem = self.check.problem(topic, t, value)
             if problem:   # as the estimator and rheo analyze refuse it
                 raise MessageError(problem)
             events = add(t, value)

@@ -13,17 +13,17 @@ from typing import Any
 import numpy as np
 
 from rheo_ros.config.setup import Setup
+from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 
 # A topic's header stamps going back by more than this (s) is a clock jump, not a reorder
 # (the core drops a message older than its stream's last, as a node does).
 CLOCK_JUMP = 0.5
 # Sizes further than this factor from the parameters' are in other units (mm for m).
 UNITS_FACTOR = 10.0
-STREAMS = ("stage", "image", "markers")
 
 
 class SampleCheck:
-    """What is wrong with each sample of a stream of ``STREAMS`` (None: nothing)."""
+    """What is wrong with each sample of a measurement topic (None: nothing)."""
 
     def __init__(self, setup: Setup) -> None:
         self.rows, self.cols = setup.tactile.rows, setup.tactile.cols
@@ -32,19 +32,19 @@ class SampleCheck:
         self.last: dict[str, float] = {}
         self.spanned = False    # the first marker frame's extent was checked
 
-    def problem(self, stream: str, t: float, data: Any) -> str | None:
-        """One line naming what is wrong with ``data`` (stage depth in m, a tactile image
-        (rows, cols) in Pa, marker positions (N, 2) in m) stamped ``t`` s, without the
-        topic; None for a good sample, which the check then remembers."""
-        last = self.last.get(stream, -np.inf)
+    def problem(self, topic: str, t: float, data: Any) -> str | None:
+        """One line naming what is wrong with ``data`` of ``topic`` (stage depth in m, a
+        tactile image (rows, cols) in Pa, marker positions (N, 2) in m) stamped ``t`` s,
+        without the topic; None for a good sample, which the check then remembers."""
+        last = self.last.get(topic, -np.inf)
         if t < last - CLOCK_JUMP:
             return f"header stamps jump back {last - t:.3g} s at {last:.3f} s (a clock jump: the record cannot be put in order)"
-        if stream == "stage" and data > self.height:
+        if topic == STAGE_TOPIC and data > self.height:
             return (f"position {data:.4g} at {t:.3f} s is deeper than the specimen's height ({self.height:g} m): "
                     "not in m (mm?)")
-        if stream == "image" and data.shape != (self.rows, self.cols):
+        if topic == TACTILE_TOPIC and data.shape != (self.rows, self.cols):
             return f"image {data.shape[0]} x {data.shape[1]} at {t:.3f} s, parameters say {self.rows} x {self.cols}"
-        if stream == "markers":
+        if topic == MARKERS_TOPIC:
             if data.shape != self.markers:
                 return f"{data.shape[0]} markers at {t:.3f} s, parameters say {self.markers[0]}"
             if not self.spanned:
@@ -53,5 +53,5 @@ class SampleCheck:
                     return (f"the markers span {span:.4g} across, the specimen is {self.width:g} m wide: "
                             "not in m (mm?)")
                 self.spanned = True
-        self.last[stream] = max(t, last)
+        self.last[topic] = max(t, last)
         return None
