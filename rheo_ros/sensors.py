@@ -185,9 +185,15 @@ class TactileArray:
         """Segment sums (T, nodes) in N from pressure images (T, rows, cols) in Pa."""
         per_col = np.asarray(images, dtype=float).sum(axis=1) * self.cell_area
         out = np.zeros((per_col.shape[0], self.nodes))
-        for node in range(self.nodes):
-            out[:, node] = per_col[:, self.segment == node].sum(axis=1)
+        owned = self.columns_per_segment > 0
+        # A segment's columns are contiguous (nearest node along x): one sum per run.
+        out[:, owned] = np.add.reduceat(per_col, self._segment_starts, axis=1)
         return out
+
+    @cached_property
+    def _segment_starts(self) -> np.ndarray:
+        """First column of each segment that owns columns (``nodal_forces``)."""
+        return np.flatnonzero(np.diff(self.segment, prepend=-1))
 
     def segment_forces(self, sums: np.ndarray) -> np.ndarray:
         """The segment forces (T, nodes) in N of segment sums (``nodal_forces``) with the

@@ -157,7 +157,7 @@ def test_message_schemas_cover_every_type_written_and_parse():
         ([], "geometry: solid\n", "geometry 'solid'"),
         ([], "specimen: {width: -0.08}\n", "must be positive"),
         ([], "material: {gamma: 0.7}\n", "Poisson ratio 0.7"),
-        ([], "stage: {velocity: 0.0}\n", "stage profile"),
+        ([], "stage: {velocity: 0.0}\n", "stage.velocity: 0.0; must be positive"),
         ([], "rates: {tactile: 30.0}\n", "rates.tactile: 30.0 Hz must divide rates.stage"),
         ([], "material: {E: true}\n", "material.E: expected float"),
         ([], "stage: {keep_time: [1, 2]}\n", "stage.keep_time: expected float"),

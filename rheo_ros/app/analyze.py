@@ -63,24 +63,34 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
 
 def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
     """The bag's measurement samples (``bag_samples``), each through the estimator node's
-    checks (``io.checks.SampleCheck``: shapes, clock jumps, units), and a topic with no
-    message refused at the end.
+    checks (``io.checks.SampleCheck``: shapes, clock jumps, units, NaN), and at the end a
+    topic with no message, or whose header stamps do not advance, refused.
 
     Raises:
         BagError: names the file, the topic and what is wrong.
     """
     counts = dict.fromkeys(TOPIC_OF, 0)   # the measurement topics must all be there (/rheo/object may not)
+    # Samples stamped no later than their topic's latest: the core drops them, as the node
+    # drops a reorder; half a topic's samples or more so stamped is a clock that does not
+    # run (stamps all 0, every message twice), not a reorder.
+    stale, latest = dict.fromkeys(TOPIC_OF, 0), dict.fromkeys(TOPIC_OF, -float("inf"))
     check = SampleCheck(setup)
     for stream, t, data in bag_samples(bag):
         if stream in TOPIC_OF:
             problem = check.problem(TOPIC_OF[stream], t, data)
             if problem:
                 raise BagError(f"{bag}: {TOPIC_OF[stream]}: {problem}")
+            stale[stream] += t <= latest[stream]
+            latest[stream] = max(latest[stream], t)
         counts[stream] = counts.get(stream, 0) + 1
         yield stream, t, data
     for stream in TOPIC_OF:
         if not counts[stream]:
             raise BagError(f"{bag}: {TOPIC_OF[stream]}: no messages")
+        if counts[stream] > 1 and 2 * stale[stream] >= counts[stream]:
+            raise BagError(f"{bag}: {TOPIC_OF[stream]}: {stale[stream]} of {counts[stream]} header stamps are not "
+                           f"after the one before (the latest {latest[stream]:.3f} s): the stamps do not advance "
+                           "(duplicated messages, or a header stamp not filled in?)")
 
 
 def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
@@ -108,6 +118,11 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
     if not releases and 0.0 < deepest < min_depth:
         raise RecordError(f"{bag}: {STAGE_TOPIC}: the stage went {deepest * 1e3:.3g} mm deep, under "
                           f"segmenter.min_depth ({min_depth * 1e3:.3g} mm): too shallow a push to identify")
+    plateau = setup.segmenter_config().plateau
+    if not jobs and deepest >= min_depth:
+        raise RecordError(f"{bag}: {STAGE_TOPIC}: the stage went {deepest * 1e3:.3g} mm deep but never held still "
+                          f"there for segmenter.plateau ({plateau} samples): no pull ended, so no keep to identify "
+                          "from (a keep too short, or none)")
     if not releases:
         seen = ", ".join(sorted({j.event.name for j in jobs})) or "no phase"
         raise RecordError(f"{bag}: {STAGE_TOPIC}: no push with a release (the stage never let go after a pull "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +18,33 @@ from rheo_ros.nodes.errors import GraphError
 from rheo_ros.record import RecordError
 
 
+def writable(path: str | None, option: str, folder: bool = False) -> None:
+    """Refuse an output path that cannot be written, before the work that fills it (an
+    analysis took minutes, then failed on a missing folder): ``folder`` True for one
+    created with its parents where missing (``--report DIR``), else a file or a bag
+    directory made in an existing folder.
+
+    Raises:
+        OSError: names the option and the path."""
+    if not path:
+        return
+    target = Path(path)
+    if folder:
+        if target.exists() and not target.is_dir():
+            raise OSError(f"{option} {path}: exists and is not a folder")
+        parent = next(p for p in (target, *target.parents) if p.exists())
+    else:
+        if target.is_dir():
+            raise OSError(f"{option} {path}: is a folder")
+        parent = target.parent
+        if not parent.is_dir():
+            raise OSError(f"{option} {path}: no folder {parent} to write it in")
+    if not parent.is_dir():
+        raise OSError(f"{option} {path}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OSError(f"{option} {path}: cannot write in {parent}")
+
+
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
         write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
@@ -24,6 +52,7 @@ def _write_json(path: str | None, data: dict[str, Any]) -> None:
 
 def _bench(args: argparse.Namespace) -> int:
     """Run ``rheo_ros.bench.<name>``: its ``run(**options)`` figures, printed and as JSON."""
+    writable(args.json, "--json")
     module = importlib.import_module(f"rheo_ros.bench.{args.bench}")
     options = {k: getattr(args, k) for k in args.bench_options}
     result = module.run(**options)
@@ -47,6 +76,7 @@ def _simulate(args: argparse.Namespace) -> int:
     params = check_params(params, "command line")
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
+    writable(args.out, "--out")
     counts = simulate_to_bag(Setup(params), params["simulator.seed"], args.out)
     print(f"{args.out}: " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
@@ -58,6 +88,7 @@ def _record(args: argparse.Namespace) -> int:
 
     if Path(args.out).exists():
         raise OSError(f"{args.out} exists already, not overwriting")
+    writable(args.out, "--out")
     # Without a parameters file the bag carries the publishing nodes' own parameters
     # (from their parameter services), never defaults they may not have run with.
     params = load_params(args.params_file) if args.params_file else None
@@ -102,12 +133,13 @@ class ProgressBar:
     """rich's progress bar on stderr on a terminal (the diagnosis's candidates done, the
     elapsed time, the step); elsewhere (a log, CI) a line per step with the elapsed time."""
 
-    def __init__(self) -> None:
+    def __init__(self, label: str = "rheo analyze") -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+        self.label = label
         self.console = Console(stderr=True)
-        self._progress = Progress(TextColumn("rheo analyze"), BarColumn(), TimeElapsedColumn(),
+        self._progress = Progress(TextColumn(label), BarColumn(), TimeElapsedColumn(),
                                   TextColumn("{task.description}"), console=self.console)
         self._task = self._progress.add_task("", total=None)
         if self.console.is_terminal:
@@ -118,13 +150,20 @@ class ProgressBar:
 
         done = re.search(r"\((\d+)/(\d+)\)", step)
         if done:   # "trying ... (k/n)": the k-th of n candidates under way; "tried ... (k/n)": k done
-            finished = int(done[1]) - (not step.startswith("tried"))
-            self._progress.update(self._task, description=step, completed=finished, total=int(done[2]))
+            self.count(int(done[1]) - (not step.startswith("tried")), int(done[2]), step)
         else:
             self._progress.update(self._task, description=step)
+            self._log(step)
+
+    def count(self, done: int, total: int, step: str) -> None:
+        """``done`` of ``total`` finished, ``step`` the latest."""
+        self._progress.update(self._task, description=step, completed=done, total=total)
+        self._log(step)
+
+    def _log(self, step: str) -> None:
         if not self.console.is_terminal:
             elapsed = self._progress.tasks[0].elapsed or 0.0
-            print(f"rheo analyze: {elapsed:5.1f} s  {step}", file=sys.stderr, flush=True)
+            print(f"{self.label}: {elapsed:5.1f} s  {step}", file=sys.stderr, flush=True)
 
     def close(self) -> None:
         if self.console.is_terminal:
@@ -133,10 +172,17 @@ class ProgressBar:
 
 def _analyze(args: argparse.Namespace) -> int:
     from rheo_ros.app.analyze import analyze
+    from rheo_ros.app.batch import bags_below, find_bags, is_bag
 
+    if len(args.bag) > 1 or (not is_bag(Path(args.bag[0])) and bags_below(Path(args.bag[0]))):
+        return _analyze_batch(args, find_bags(args.bag))
+    if args.scheduler or args.workers or args.table:
+        raise ValueError("--scheduler, --workers and --table are for several bags (a list or a directory of them)")
+    writable(args.json, "--json")
+    writable(args.report, "--report", folder=True)
     bar = None if args.quiet else ProgressBar()
     try:
-        result = analyze(args.bag, effects=args.add or (), params_file=args.params_file,
+        result = analyze(args.bag[0], effects=args.add or (), params_file=args.params_file,
                          discover_effects=not args.no_discover, progress=bar)
     finally:
         if bar:
@@ -156,6 +202,49 @@ def _analyze(args: argparse.Namespace) -> int:
     if report_line:
         print(report_line)
     return 0
+
+
+def _analyze_batch(args: argparse.Namespace, bags: list[Path]) -> int:
+    """``rheo analyze`` over several bags on Dask (``app.batch``): a JSON per bag in the
+    ``--json`` folder, a report per bag in the ``--report`` folder, the table at ``--table``;
+    a line per bag. Exit 2 when a bag failed (its row says why), after writing the rest."""
+    from rheo_ros.app.batch import batch_jobs, run_batch, write_table
+    from rheo_ros.models.effects import effect_class
+
+    for effect in args.add or ():
+        effect_class(*effect.split(":", 1))  # an unknown id fails before any cluster starts
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers {args.workers}: at least 1")
+    table = Path(args.table or "rheo-analysis.parquet")
+    writable(args.json, "--json", folder=True)      # several bags: a folder, a JSON per bag
+    writable(args.report, "--report", folder=True)
+    writable(str(table.parent), "--table", folder=True)
+    for folder in (args.json, args.report, table.parent):
+        if folder:
+            Path(folder).mkdir(parents=True, exist_ok=True)
+    writable(str(table), "--table")
+    jobs = list(batch_jobs(bags, args.params_file, args.add or (), not args.no_discover, args.json, args.report))
+    bar = None if args.quiet else ProgressBar(f"rheo analyze ({len(jobs)} bags)")
+    try:
+        rows = run_batch(jobs, args.scheduler, args.workers,
+                         progress=bar and (lambda done, total, bag: bar.count(done, total, f"{Path(bag).name} done")))
+    finally:
+        if bar:
+            bar.close()
+    table = write_table(rows, table)
+    failed = 0
+    for job in jobs:
+        mine = [r for r in rows if r["bag"] == job.bag]
+        if mine[0]["error"]:
+            failed += 1
+            print(f"{job.bag}: error: {mine[0]['error']}")
+            continue
+        final = next((r for r in mine if r["push"] == 0 and r["final"]), mine[-1])
+        print(f"{job.bag}: {final['verdict']}; {final['model']}: E {final['E']:.4g} Pa, c1 {final['c1']:.4g} Pa s, "
+              f"c2 {final['c2']:.4g} Pa s, gamma {final['gamma']:.3g}")
+    print(f"{len(jobs)} bags: {len(jobs) - failed} analysed, {failed} failed; table: {table}"
+          + (f"; JSON in {args.json}" if args.json else "") + (f"; reports in {args.report}" if args.report else ""))
+    return 2 if failed else 0
 
 
 def format_analysis(report: dict[str, Any]) -> str:
@@ -305,10 +394,19 @@ def build_parser() -> argparse.ArgumentParser:
     rn.set_defaults(func=_run)
     an = sub.add_parser("analyze", help="identify, compare model and measurement, diagnose the missing effect, "
                                         "add it and refit: the models side by side, JSON and an HTML report")
-    an.add_argument("bag", metavar="BAG", help="rosbag2 directory")
+    an.add_argument("bag", metavar="BAG", nargs="+",
+                    help="rosbag2 directory; several, or a directory of them, run as a batch on Dask")
     an.add_argument("--params-file", metavar="FILE", help="parameters file overriding the bag's own")
-    an.add_argument("--json", metavar="FILE", help="write the contract's JSON report")
-    an.add_argument("--report", metavar="DIR", help="write an HTML report (one self-contained file) into DIR")
+    an.add_argument("--json", metavar="FILE",
+                    help="write the contract's JSON report (several bags: a folder, a JSON per bag)")
+    an.add_argument("--report", metavar="DIR", help="write an HTML report (one self-contained file) into DIR "
+                                                   "(several bags: a folder per bag in DIR)")
+    an.add_argument("--table", metavar="FILE", help="several bags: the Parquet table, a row per bag, push and "
+                                                   "model (default: rheo-analysis.parquet)")
+    an.add_argument("--scheduler", metavar="ADDRESS",
+                    help="several bags: the Dask scheduler to run them on (default: a local cluster)")
+    an.add_argument("--workers", type=int, metavar="N",
+                    help="several bags: the local cluster's worker processes (default: one per core, at most 4)")
     an.add_argument("--add", action="append", metavar="EFFECT",
                     help="effect to add to the base model (repeatable, in order): relaxation_branch, adhesion, "
                          "strain_stiffening, sensor_drift, or one you registered")

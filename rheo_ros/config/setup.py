@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from rheo_ros.config.table import PARAMETERS, RENAMED
+from rheo_ros.config.table import MAX_NODES, PARAMETERS, RENAMED
 from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.dynamic import DynamicFE
@@ -129,6 +129,8 @@ def load_params(path: str | Path | None) -> dict[str, Any]:
         text = Path(path).read_text()
     except OSError as exc:
         raise ParamsError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ParamsError(f"{path}: not text (byte {exc.start} is not UTF-8)") from None
     return parse_params(text, str(path))
 
 
@@ -157,9 +159,15 @@ class Setup:
         p = self.params
         for rate in ("rates.tactile", "rates.markers"):
             ratio = p["rates.stage"] / p[rate]
-            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            if not np.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
                 raise ParamsError(f"{source}: {rate}: {p[rate]} Hz must divide rates.stage ({p['rates.stage']} Hz): "
                                   "the simulator samples on the stage's grid")
+        for refine in ("mesh.refine", "simulator.refine"):
+            nodes = ((p["markers.rows"] - 1) * p[refine] + 1) * ((p["markers.cols"] - 1) * p[refine] + 1)
+            if nodes > MAX_NODES:
+                raise ParamsError(f"{source}: {refine}: {p[refine]} on markers.rows x markers.cols = "
+                                  f"{p['markers.rows']} x {p['markers.cols']} makes {nodes} mesh nodes; at most "
+                                  f"{MAX_NODES} fit in memory")
         try:
             _ = (self.mesh, self.tactile, self.profile, self.effects())
             self.mesh.refined(p["mesh.refine"])
@@ -272,13 +280,23 @@ class Setup:
         return tuple(e for e in self.params["simulator.effects"] if e)
 
     def effects(self) -> tuple[Effect, ...]:
+        twice = sorted({e for e in self.effect_ids if self.effect_ids.count(e) > 1})
+        if twice:   # one set of effects.<id>.* for each: a second would only double the first
+            raise ParamsError(f"simulator.effects: {', '.join(twice)} listed more than once")
         out = []
         for effect_id in self.effect_ids:
             prefix = f"effects.{effect_id}."
             values = {k[len(prefix):]: v for k, v in self.params.items() if k.startswith(prefix)}
             form = values.pop("form", None)   # effects.<id>.form: one of the family's forms (default: its first)
             try:
+                effect_class(effect_id)
+            except KeyError as exc:   # a listed id the catalogue does not hold
+                raise ParamsError(f"simulator.effects: {exc.args[0]}") from None
+            try:
                 cls = effect_class(effect_id, form)
+            except KeyError as exc:
+                raise ParamsError(f"{prefix}form: {exc.args[0]}") from None
+            try:
                 # The table's defaults are the default form's fields: another form (held
                 # adhesion, no time) leaves those it has not; a value set for one is refused.
                 own = {f.name for f in fields(cls)}

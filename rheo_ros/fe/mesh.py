@@ -26,6 +26,7 @@ bottom pressure integrated over the segment's extent (``segment_integrals``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -65,7 +66,18 @@ def lame_per_unit_modulus(gamma: float) -> tuple[float, float]:
 
 def lame_slope_per_unit_modulus(gamma: float) -> tuple[float, float]:
     """d/dgamma of :func:`lame_per_unit_modulus`."""
-    return (1.0 + gamma**2) / (1.0 - gamma**2) ** 2, -0.5 / (1.0 + gamma) ** 2
+    return lame_derivative_per_unit_modulus(gamma, 1)
+
+
+def lame_derivative_per_unit_modulus(gamma: float, order: int) -> tuple[float, float]:
+    """The ``order``-th derivative in gamma of :func:`lame_per_unit_modulus` (order 0: the
+    values), from ``lambda = (1/(1 - gamma) - 1/(1 + gamma)) / 2``, ``mu = 1/(2 (1 + gamma))``."""
+    if order == 0:
+        return lame_per_unit_modulus(gamma)
+    f = 0.5 * math.factorial(order)
+    minus = (-1.0) ** order
+    return f * (1.0 / (1.0 - gamma) ** (order + 1) - minus / (1.0 + gamma) ** (order + 1)), \
+        f * minus / (1.0 + gamma) ** (order + 1)
 
 
 FRICTIONLESS = Boundary("frictionless", "frictionless")
@@ -198,10 +210,10 @@ class Mesh:
         lam, mu = lame_per_unit_modulus(float(gamma))
         return (lam * K_lambda + mu * K_mu).tocsr()
 
-    def stiffness_slope(self, gamma: float) -> sparse.csr_matrix:
-        """d/dgamma of :meth:`stiffness`, sparse."""
+    def stiffness_derivative(self, gamma: float, order: int) -> sparse.csr_matrix:
+        """The ``order``-th derivative in gamma of :meth:`stiffness`, sparse."""
         K_lambda, K_mu = self.stiffness_parts
-        lam, mu = lame_slope_per_unit_modulus(float(gamma))
+        lam, mu = lame_derivative_per_unit_modulus(float(gamma), order)
         return (lam * K_lambda + mu * K_mu).tocsr()
 
     def lumped_mass(self, density: float) -> np.ndarray:

@@ -297,6 +297,9 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
     if not isinstance(custom, dict):
         raise BagError(f"{meta}: custom_data is not a mapping")
     text = custom.get(PARAMS_KEY)
+    if text and not isinstance(text, str):
+        raise BagError(f"{meta}: custom_data {PARAMS_KEY}: {str(text)[:40]!r} ({type(text).__name__}) is not a "
+                       "parameters file's text")
     return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}") if text else None
 
 
@@ -312,7 +315,29 @@ def bag_reader(path: Path) -> Iterator[AnyReader]:
     except BagError:
         raise
     except Exception as exc:
-        raise BagError(f"{path}: cannot read bag: {' '.join(str(exc).split())}") from None
+        why = next(filter(None, map(mcap_damage, sorted(path.glob("*.mcap")))), " ".join(str(exc).split()))
+        raise BagError(f"{path}: cannot read bag: {why}") from None
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def mcap_damage(mcap: Path) -> str | None:
+    """What is wrong with the ends of ``mcap`` in words (rosbags says "File end magic is
+    invalid"), or None when both ends are an MCAP file's."""
+    size = mcap.stat().st_size
+    with mcap.open("rb") as fh:
+        head = fh.read(len(MCAP_MAGIC))
+        fh.seek(max(size - len(MCAP_MAGIC), 0))
+        tail = fh.read()
+    if size == 0:
+        return f"{mcap.name} is empty (0 bytes)"
+    if head != MCAP_MAGIC:
+        return f"{mcap.name} is not an MCAP file (it does not start with the MCAP magic)"
+    if tail != MCAP_MAGIC or size < 2 * len(MCAP_MAGIC):
+        return (f"{mcap.name} ends at byte {size} without the MCAP footer: cut short (copied in part, or its "
+                "writer was killed)")
+    return None
 
 
 def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
@@ -323,8 +348,13 @@ def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
             if c.topic in expected and c.msgtype != expected[c.topic]:
                 raise BagError(f"{path}: {c.topic}: a connection of type {c.msgtype}; the contract's is "
                                f"{expected[c.topic]}")
-        for conn, _, raw in reader.messages(connections=conns):
-            yield conn.topic, reader.deserialize(raw, conn.msgtype)
+        for conn, t, raw in reader.messages(connections=conns):
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:   # rosbags raises several types on bytes that are not CDR of the type
+                raise BagError(f"{path}: {conn.topic}: the message logged at {t * 1e-9:.3f} s is not a "
+                               f"{conn.msgtype} ({' '.join(str(exc).split())})") from None
+            yield conn.topic, msg
 
 
 def read_bag(path: str | Path, params: dict[str, Any] | None = None) -> BagContents:

@@ -1,7 +1,8 @@
 """The checks a measurement sample passes before the core takes it, one rule for the
 estimator node and ``rheo analyze``: the frame's shape against the parameters, the header
 stamps against clock jumps, and the stage's depth and the first marker frame's extent
-against the specimen's size (a recording in mm read as m). Offline a failed check ends
+against the specimen's size (a recording in mm read as m), and NaN or inf in a reading
+(dropped silently before: a frame with a NaN cell). Offline a failed check ends
 the analysis naming the file and topic (``app.analyze.checked_samples``); online the
 message is refused and ``/diagnostics`` names the topic and why.
 """
@@ -39,6 +40,9 @@ class SampleCheck:
         last = self.last.get(topic, -np.inf)
         if t < last - CLOCK_JUMP:
             return f"header stamps jump back {last - t:.3g} s at {last:.3f} s (a clock jump: the record cannot be put in order)"
+        unfinite = non_finite(topic, t, data)
+        if unfinite:
+            return unfinite
         if topic == STAGE_TOPIC and data > self.height:
             return (f"position {data:.4g} at {t:.3f} s is deeper than the specimen's height ({self.height:g} m): "
                     "not in m (mm?)")
@@ -48,10 +52,26 @@ class SampleCheck:
             if data.shape != self.markers:
                 return f"{data.shape[0]} markers at {t:.3f} s, parameters say {self.markers[0]}"
             if not self.spanned:
-                span = float(np.ptp(data[:, 0]))
+                span = float(np.max(data[:, 0])) - float(np.min(data[:, 0]))   # inf, not numpy's overflow warning
                 if not self.width / UNITS_FACTOR < span < UNITS_FACTOR * self.width:
                     return (f"the markers span {span:.4g} across, the specimen is {self.width:g} m wide: "
                             "not in m (mm?)")
                 self.spanned = True
         self.last[topic] = max(t, last)
         return None
+
+
+def non_finite(topic: str, t: float, data: Any) -> str | None:
+    """What is not a number in a sample of ``topic`` (NaN or inf, which no reading can be),
+    naming the first such cell or marker; None when every value is finite."""
+    values = np.asarray(data, dtype=float)
+    bad = ~np.isfinite(values)
+    if not bad.any():
+        return None
+    if topic == STAGE_TOPIC:
+        return f"position {float(values):g} at {t:.3f} s is not a finite number"
+    first = np.argwhere(bad)[0]
+    if topic == TACTILE_TOPIC:
+        return (f"{int(bad.sum())} reading(s) not finite (NaN or inf) at {t:.3f} s, the first at row {first[0]}, "
+                f"col {first[1]}")
+    return f"{int(bad.sum())} coordinate(s) not finite (NaN or inf) at {t:.3f} s, the first at marker {first[0]}"

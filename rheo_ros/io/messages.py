@@ -148,10 +148,14 @@ def read_pressure_image(msg: Any) -> np.ndarray:
     """-> pressures (rows, cols) in Pa."""
     if msg.encoding != "32FC1":
         raise MessageError(f"encoding: {msg.encoding!r}, expected '32FC1'")
-    data = np.frombuffer(bytes(msg.data), dtype=">f4" if msg.is_bigendian else "<f4")
+    raw = bytes(msg.data)
+    if len(raw) % 4:   # np.frombuffer's own ValueError would not name the field
+        raise MessageError(f"data: {len(raw)} bytes, not a whole number of 4-byte floats")
+    data = np.frombuffer(raw, dtype=">f4" if msg.is_bigendian else "<f4")
     if data.size != msg.height * msg.width or msg.step != msg.width * 4:
         raise MessageError(f"data: {data.size} floats for {msg.height} x {msg.width} (step {msg.step})")
-    return data.reshape(msg.height, msg.width).astype(float)
+    with np.errstate(invalid="ignore"):   # a signalling NaN: the sample checks name it, no warning line
+        return data.reshape(msg.height, msg.width).astype(float)
 
 
 def read_marker_array(msg: Any) -> np.ndarray:

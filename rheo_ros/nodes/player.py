@@ -98,6 +98,17 @@ def _acked(publisher: Any, seconds: float, stop: threading.Event) -> bool:
     return True
 
 
+def message_class(path: Path, topic: str, msgtype: str) -> type:
+    """The installed rclpy class of ``msgtype`` (a bag may hold types this machine lacks).
+
+    Raises:
+        BagError: names the bag, the topic and the type."""
+    try:
+        return MessageTypes.rclpy().lookup(msgtype)
+    except (ImportError, AttributeError, ValueError):
+        raise BagError(f"{path}: {topic}: type {msgtype} is not installed here; give --topics without it") from None
+
+
 def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 1,
          topics: Sequence[str] | None = None, wait_for: int = 0, discovery_timeout: float = 10.0) -> dict[str, int]:
     """Publish a bag; returns the count per topic. Ctrl-C or SIGTERM stops it.
@@ -119,6 +130,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         raise ValueError(f"--loop: {loops} must be a whole number of passes, at least 1")
     with bag_reader(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections if topics is None or c.topic in topics}
+    classes = {topic: message_class(path, topic, msgtype) for topic, msgtype in types.items()}   # before DDS starts
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     profile = Path(tempfile.mkdtemp(prefix="rheo-play-")) / "fastdds_writer.xml"
@@ -129,8 +141,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("rheo_play")
     try:
-        lookup = MessageTypes.rclpy().lookup
-        pubs: dict[str, Any] = {t: node.create_publisher(lookup(m), t, PLAY_QOS) for t, m in types.items()}
+        pubs: dict[str, Any] = {t: node.create_publisher(classes[t], t, PLAY_QOS) for t in types}
         clock_pub = node.create_publisher(Clock, "/clock", PLAY_QOS) if clock else None
         deadline = time.monotonic() + discovery_timeout
         while wait_for and any(p.get_subscription_count() < wait_for for p in pubs.values()):

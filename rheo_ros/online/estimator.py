@@ -27,6 +27,7 @@ before it are kept.
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -393,12 +394,14 @@ class OnlineEstimator:
     """
 
     MAX_SAMPLES = 500_000   # per stream, whatever happens (an hour at 100 Hz is 360 000)
+    READOUT_BLOCK = 256     # tactile frames added to the readout at once
 
     def __init__(self, setup: Setup, segmenter: SegmenterConfig | None = None,
                  config: EstimatorConfig | None = None) -> None:
         self.setup, self.mesh = setup, setup.mesh
         self.tactile = setup.tactile
         self.readout = TactileReadout()   # the tactile readings so far, for the sensor they show
+        self._unread: list[np.ndarray] = []   # frames not yet added to it (added in blocks: cheaper)
         self.sensor: SensorReading | None = None   # as the last record's readings showed it
         self.config = config or EstimatorConfig()
         self.segmenter = PhaseSegmenter(segmenter)
@@ -442,7 +445,9 @@ class OnlineEstimator:
         if not self._store("force", t, np.asarray(forces, float)):
             return []
         if image is not None:
-            self.readout.add(image)
+            self._unread.append(image)
+            if len(self._unread) >= self.READOUT_BLOCK:
+                self._read_frames()
         return self._took(self.segmenter.add_force(t, float(np.sum(forces))))
 
     def add_markers(self, t: float, positions: np.ndarray) -> list[PhaseEvent]:
@@ -473,8 +478,15 @@ class OnlineEstimator:
         said = [(t, k) for t, k in self.hints if after < t <= profile.t_pull_start]
         return said[-1] if said else (-np.inf, "")
 
+    def _read_frames(self) -> None:
+        # The readout's facts are counts, extremes and sets: the same in blocks as frame by frame.
+        if self._unread:
+            self.readout.add(np.stack(self._unread))
+            self._unread = []
+
     def _store(self, stream: str, t: float, value: np.ndarray) -> bool:
-        if not (np.isfinite(t) and np.all(np.isfinite(value))) or not self.streams[stream].add(t, value):
+        finite = math.isfinite(value) if value.ndim == 0 else bool(np.isfinite(value).all())
+        if not (math.isfinite(t) and finite) or not self.streams[stream].add(t, value):
             self.rejected[stream] += 1
             return False
         self._trim()
@@ -601,6 +613,7 @@ class OnlineEstimator:
                 t0 = max(t0, t_hint)
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
+        self._read_frames()
         self.sensor, force = self.setup.sensor(self.readout, parts["force"][1].reshape(-1, self.mesh.cols), markers)
         if kind == "new":   # the robot says so: another object, at rest
             self.at_rest_since = max(self.at_rest_since, profile.t_pull_start)

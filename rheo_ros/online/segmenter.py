@@ -255,10 +255,20 @@ class PhaseSegmenter:
         self.state, self._run = "release", []
         self._release_min = float(rd.min())
         self._release_rest: deque[float] = deque(maxlen=self.REST)
+        self._release_seen, self._release_cache = 0, None
         self._judged = t_leave
         self._unjudged = deque((tf for tf, _ in self._frames if tf > t_leave), maxlen=self.MAX_FRAMES)
         events = [PhaseEvent(self.experiment, "keep", t_pull_end, t_leave, t, self._held_count)]
         return events + self._judge_settled()
+
+    def _release_level(self) -> float:
+        """The depth over which a stage sample after the release starts a new push: the
+        resting samples' median plus six spreads (refreshed every REFRESH, as at rest)."""
+        if self._release_cache is None or self._release_seen - self._release_cache[0] >= self.REFRESH:
+            rest = np.fromiter(self._release_rest, float)
+            level = float(np.median(rest)) + max(6.0 * _robust_spread(rest), 0.05 * self.config.min_depth)
+            self._release_cache = (self._release_seen, level)
+        return self._release_cache[1]
 
     def _stage_release(self, t: float, depth: float) -> list[PhaseEvent]:
         # The stage is back near rest once it is below 5 % of the push; a new push is
@@ -268,9 +278,7 @@ class PhaseSegmenter:
             self._retraction.add(t, depth)   # the retraction's speed from all of its samples (at release end)
         if self._release_min > 0.05 * self._level:
             return []
-        base = float(np.median(np.fromiter(self._release_rest, float))) if self._release_rest else depth
-        spread = _robust_spread(np.fromiter(self._release_rest, float))
-        if depth > base + max(6.0 * spread, 0.05 * self.config.min_depth) and len(self._release_rest) >= 3:
+        if len(self._release_rest) >= 3 and depth > self._release_level():
             self._run.append((t, depth))
             if len(self._run) >= self.config.confirm:
                 # The next push started before the mesh settled: the release ends here.
@@ -283,6 +291,7 @@ class PhaseSegmenter:
                 return events
             return []
         self._release_rest.extend(d for _, d in self._run)
+        self._release_seen += len(self._run) + 1
         self._run = []
         self._release_rest.append(depth)
         # Marker frames wait for the stage to pass them (``_judge_settled``): judge them now.
