@@ -317,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def bench_command(name: str, text: str, **options: tuple[type, Any, str]) -> None:
         """``rheo bench NAME``: its options (type, default, help; ``bool``: a flag, ``str``
-        with default None: a value given or not), ``--json``, run by ``_bench``, which
+        with default None: a path given or not), ``--json``, run by ``_bench``, which
         passes each option to the bench's ``run`` under its name (``-`` as ``_``)."""
         b = bench.add_parser(name, help=text)
         for option, (kind, default, what) in options.items():
@@ -327,7 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
             elif default is None:
                 b.add_argument(flag, dest=option, type=kind, metavar="PATH" if kind is str else None, help=what)
             else:
-                b.add_argument(flag, dest=option, type=kind, default=default, help=f"{what} (default {default:g})")
+                shown = default if isinstance(default, str) else f"{default:g}"
+                b.add_argument(flag, dest=option, type=kind, default=default, help=f"{what} (default {shown})")
         b.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
         b.set_defaults(func=_bench, bench_options=tuple(options))
 
@@ -351,6 +352,10 @@ def build_parser() -> argparse.ArgumentParser:
                                         "how often a wrong effect is named"))
     bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
     bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
+    bench_command("scaling", "rheo analyze's time and peak memory (all processes) against the record's length and "
+                             "the tactile rate",
+                  lengths=(str, "170,600", "record lengths in s, comma-separated (the issue's: 170,600,3000)"),
+                  rates=(str, "50", "tactile rates in Hz, comma-separated (50,500)"), seed=(int, 1, "noise seed"))
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
     s.add_argument("--effect", action="append", metavar="ID",
                    help="hidden effect to add (repeatable): relaxation_branch, adhesion, strain_stiffening, "

@@ -1,0 +1,28 @@
+"""``rheo bench scaling``'s parts: the stretched record and the memory of a process tree."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from rheo_ros.bench.scaling import peak_memory, record_params
+from rheo_ros.config.setup import Setup
+
+
+@pytest.mark.parametrize(("length", "rate"), [(170.0, 50.0), (600.0, 500.0), (3000.0, 50.0)])
+def test_the_record_is_stretched_to_the_length_asked_at_the_rate_asked(length, rate):
+    setup = Setup(record_params(length, rate))
+    assert setup.profile.t_end == pytest.approx(length, rel=0.01)
+    assert setup.params["rates.tactile"] == rate and setup.params["rates.stage"] >= rate
+
+
+def test_the_peak_counts_the_children_a_process_starts():
+    """A parent holding 150 MB and a child holding 300 MB at once: the peak is their sum
+    (within the interpreters' own ~30 MB each and the sampling's 20 ms)."""
+    code = ("import subprocess, sys, time; a = bytearray(150_000_000); a[::4096] = b'x' * len(a[::4096]); "
+            "subprocess.run([sys.executable, '-c', \"import time; b = bytearray(300_000_000); "
+            "b[::4096] = b'x' * len(b[::4096]); time.sleep(0.5)\"])")
+    wall, peak, rc = peak_memory([sys.executable, "-c", code])
+    assert rc == 0 and wall > 0.5
+    assert 450e6 < peak < 600e6, peak
