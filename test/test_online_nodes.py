@@ -307,8 +307,10 @@ def test_identify_action_runs_a_push_with_feedback_and_cancels_safely(tmp_path, 
         # With the package's own outputs: their types are not in rosbags' store (issue 21).
         recorder = g.start("rheo", "record", "/stage/joint_states", "/tactile/pressure", "/markers/mesh",
                            "/rheo/object", "/rheo/estimate", "/rheo/diagnosis", "/rheo/pool",
-                           "--out", str(tmp_path / "recorded"), "--params-file", str(tmp_path / "params.yaml"))
-        g.spin_until(lambda: "recording 7 topic(s)" in (tmp_path / "rheo.log").read_text(), 30, "the recorder")
+                           "--out", str(tmp_path / "recorded"), "--params-file", str(tmp_path / "params.yaml"),
+                           # The simulator builds its 65 x 65 mesh first: 11 s seen on a loaded machine.
+                           "--discovery-timeout", "60")
+        g.spin_until(lambda: "recording 7 topic(s)" in (tmp_path / "rheo.log").read_text(), 90, "the recorder")
         g.spin_until(lambda: client.server_is_ready(), 30, "the identify action server")
         feedback = []
         goal = client.send_goal_async(Identify.Goal(), feedback_callback=feedback.append)
