@@ -10,6 +10,7 @@ final estimate.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -35,6 +36,7 @@ from rheo_ros.identification.pipeline import (
 from rheo_ros.io.bag import bag_samples, read_params, require_bag
 from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
+from rheo_ros.io.files import write_text_atomic
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
@@ -235,3 +237,15 @@ def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[O
     setup = Setup(params)
     estimator = OnlineEstimator(setup, setup.segmenter_config(), setup.estimator_config())
     return estimate_stream(estimator, bag_samples(path), diagnoses, pools)
+
+
+def write_outputs(result: Analysis, json_path: str | Path | None, report_dir: str | Path | None) -> Path | None:
+    """An analysis's JSON (written atomically) and HTML report, where asked; the report's path."""
+    if json_path:
+        write_text_atomic(json_path, json.dumps(result.to_json(), indent=2, default=float) + "\n")
+    if not report_dir:
+        return None
+    from rheo_ros.reports.html import write_report
+
+    return Path(write_report(result, report_dir))
+

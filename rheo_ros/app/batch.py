@@ -12,7 +12,6 @@ cluster's workers already fill the cores, one bag each.
 from __future__ import annotations
 
 import json
-import os
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -20,10 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rheo_ros.config.setup import ParamsError
 from rheo_ros.io.errors import BagError
-from rheo_ros.io.files import write_text_atomic
-from rheo_ros.record import RecordError
+from rheo_ros.io.files import write_bytes_atomic
 
 # The parameters every row carries as its own column (an effect's own go to ``params``).
 BASE_PARAMETERS = ("E", "c1", "c2", "gamma")
@@ -94,22 +91,16 @@ def analyze_bag(job: BagJob) -> list[dict[str, Any]]:
     """Analyse one bag (in a worker): write its JSON and report, return its table rows.
     Errors are rows: the bad input's one line (as ``rheo analyze`` prints it), or the
     exception's last line for a failure of the package (with its type)."""
-    from rheo_ros.app.analyze import analyze
+    from rheo_ros.app.analyze import analyze, write_outputs
+    from rheo_ros.app.cli import BAD_INPUT, error_line
 
     try:
         result = analyze(job.bag, effects=job.effects, params_file=job.params_file,
                          discover_effects=job.discover, workers=1)
-        report = result.to_json()
-        if job.json:
-            write_text_atomic(job.json, json.dumps(report, indent=2, default=float) + "\n")
-        if job.report:
-            from rheo_ros.reports.html import write_report
-
-            write_report(result, job.report)
-        return table_rows(job.bag, report)
-    except (BagError, RecordError, ParamsError, KeyError, OSError, ValueError) as exc:
-        text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        return [error_row(job.bag, " ".join(str(text).split()))]
+        write_outputs(result, job.json, job.report)
+        return table_rows(job.bag, result.to_json())
+    except BAD_INPUT as exc:
+        return [error_row(job.bag, error_line(exc))]
     except Exception as exc:   # a bug must not end the batch: the row says what failed, and where
         where = traceback.extract_tb(exc.__traceback__)[-1]
         return [error_row(job.bag, f"{type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})")]
@@ -172,18 +163,17 @@ ROW_SCHEMA = {
 
 
 def write_table(rows: list[dict[str, Any]], path: str | Path) -> Path:
-    """The rows as one Parquet file (written beside, then renamed into place)."""
+    """The rows as one Parquet file, written atomically (``io.files``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     schema = pa.schema([(name, pa.type_for_alias(kind)) for name, kind in ROW_SCHEMA.items()])
     table = pa.Table.from_pylist([{k: r.get(k) for k in ROW_SCHEMA} for r in rows], schema=schema)
+    buffer = pa.BufferOutputStream()
+    pq.write_table(table, buffer)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    pq.write_table(table, partial)
-    os.replace(partial, path)
-    return path
+    return write_bytes_atomic(path, buffer.getvalue().to_pybytes())
 
 
 def run_batch(jobs: Sequence[BagJob], scheduler: str | None = None, workers: int | None = None,

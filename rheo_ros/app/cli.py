@@ -45,6 +45,17 @@ def writable(path: str | None, option: str, folder: bool = False) -> None:
         raise OSError(f"{option} {path}: cannot write in {parent}")
 
 
+# What a bad input raises: one line on stderr, exit 2 (``rheo analyze`` of many bags: the
+# bag's row). Anything else is a bug in the package, with its traceback.
+BAD_INPUT = (BagError, RecordError, GraphError, ParamsError, KeyError, OSError, ValueError)
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line a bad input's error gives (a KeyError's own text, not its repr)."""
+    text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+    return " ".join(str(text).split())
+
+
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
         write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
@@ -171,7 +182,7 @@ class ProgressBar:
 
 
 def _analyze(args: argparse.Namespace) -> int:
-    from rheo_ros.app.analyze import analyze
+    from rheo_ros.app.analyze import analyze, write_outputs
     from rheo_ros.app.batch import bags_below, find_bags, is_bag
 
     if len(args.bag) > 1 or (not is_bag(Path(args.bag[0])) and bags_below(Path(args.bag[0]))):
@@ -190,17 +201,10 @@ def _analyze(args: argparse.Namespace) -> int:
     report = result.to_json()
     for warning in report["warnings"]:
         print(f"rheo analyze: warning: {warning}", file=sys.stderr)
-    _write_json(args.json, report)
-    if args.report:
-        from rheo_ros.reports.html import write_report
-
-        path = write_report(result, args.report)
-        report_line = f"report: {path}"
-    else:
-        report_line = ""
+    path = write_outputs(result, args.json, args.report)
     print(format_analysis(report))
-    if report_line:
-        print(report_line)
+    if path:
+        print(f"report: {path}")
     return 0
 
 
@@ -435,9 +439,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (BagError, RecordError, GraphError, ParamsError, KeyError, OSError, ValueError) as exc:
-        text = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
-        print(f"rheo: error: {' '.join(str(text).split())}", file=sys.stderr)
+    except BAD_INPUT as exc:
+        print(f"rheo: error: {error_line(exc)}", file=sys.stderr)
         return 2
 
 
