@@ -92,15 +92,18 @@ def test_ten_bags_on_two_workers_give_a_json_each_and_one_table(batch):
 
 def test_a_bag_of_the_batch_gets_the_same_json_as_alone(batch):
     """One computation: the worker's analysis of a bag is the one ``rheo analyze`` gives for
-    it alone (the same code, single-threaded BLAS: equal to rounding)."""
+    it alone (the same code; BLAS kernels and threads may differ between the processes, so
+    within 1e-3 of each parameter's std, and the BIC within 1e-3 of one unit)."""
     kinds, out, _ = batch
     bag = next(b for b, k in kinds.items() if k == "effect_relaxation_branch")
     alone = analyze(bag, discover_effects=False, workers=1).to_json()
     written = json.loads((out / "json" / f"{Path(bag).name}.json").read_text())
-    for p in ("E", "c1", "c2", "gamma"):
-        assert written["estimate"][p] == pytest.approx(alone["estimate"][p], rel=1e-9)
-        assert written["models"][0]["params"][p] == pytest.approx(alone["models"][0]["params"][p], rel=1e-9)
-    assert written["models"][0]["bic"] == pytest.approx(alone["models"][0]["bic"], rel=1e-9)
+    for part in ("estimate", "model"):
+        mine, theirs = ((d["estimate"], d["estimate"]["std"]) if part == "estimate" else
+                        (d["models"][0]["params"], d["models"][0]["std"]) for d in (written, alone))
+        for p in ("E", "c1", "c2", "gamma"):
+            assert abs(mine[0][p] - theirs[0][p]) <= 1e-3 * theirs[1][p], (part, p, mine[0][p], theirs[0][p])
+    assert abs(written["models"][0]["bic"] - alone["models"][0]["bic"]) <= 1e-3
 
 
 def test_a_cluster_started_elsewhere_runs_the_batch(tmp_path):
