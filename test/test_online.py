@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import BAGS, TRUTH
+from conftest import BAGS, REPO, TRUTH
 
 from rheo_ros.app.analyze import estimate_bag
 from rheo_ros.config.setup import Setup, load_params
@@ -441,3 +441,55 @@ def test_a_release_still_moving_at_max_release_ends_there_and_says_so():
     settled = [e for e in feed_segmenter(PhaseSegmenter(), messages(
         run.stage_t, run.stage_depth, run.tactile_t, force, run.marker_t, run.markers)) if e.name == "release"]
     assert settled[0].t_end - settled[0].t_start > 10.0
+
+
+def test_a_release_a_node_closed_on_silence_closes_there_in_the_recordings_analysis(tmp_path):
+    """One computation for a release the node cut short: its core's topics go silent 5 s
+    into the release (a simulator that stalled) and the data then go on at later stamps.
+    The node says so on /rheo/phase; rheo analyze of the recording (the phase message in
+    it) closes the release at the same sample, with the same data, as the node did;
+    without the message the release runs on to where the mesh settles."""
+    from rosbags.highlevel import AnyReader
+
+    from rheo_ros.app.analyze import release_jobs
+    from rheo_ros.io.bag import BagWriter, read_params, typestore
+    from rheo_ros.io.messages import PHASE_TOPIC, PHASE_TYPE, phase_message
+
+    bag = BAGS / "clean_short_keep"
+    setup = Setup(read_params(bag))
+    core = OnlineEstimator(setup, setup.segmenter_config(), replace(setup.estimator_config(), release_interval=0.0))
+    add = {"stage": core.add_stage, "image": core.add_image, "markers": core.add_markers}
+    why = "no message on any topic for 2 s"
+    jobs, cut = [], None
+    for name, t, data in bag_samples(bag):
+        if cut is None and t > core.segmenter.release_began + 5.0:
+            [event] = core.finish(why)
+            cut = (event, core.cut_short(event))
+            jobs += core.ready_jobs(silent=core.streams)
+        add[name](t, data)
+        jobs += core.ready_jobs()
+    core.finish()
+    jobs += core.ready_jobs(silent=core.streams)
+    event, said = cut
+    assert said == why and event.name == "release"
+    [online] = [j for j in jobs if j.event.name == "release"]
+    assert online.cut_short == why and online.event == event
+
+    definition = (REPO / "msg_schemas" / "rheo_ros_interfaces" / "msg" / "Phase.msg").read_text()
+    recorded = tmp_path / "recorded"
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        topics = {c.topic: c.msgtype for c in reader.connections} | {PHASE_TOPIC: PHASE_TYPE}
+        with BagWriter(recorded, read_params(bag), topics=topics, definitions={PHASE_TYPE: definition}) as writer:
+            found = round(event.t_found * 1e9)
+            for conn, stamp, raw in reader.messages():
+                writer.write_raw(conn.topic, stamp, raw)
+                if found is not None and stamp >= found:   # logged when the node said it
+                    writer.write(PHASE_TOPIC, stamp, phase_message(writer.types, event, cut_short=why))
+                    found = None
+    [offline] = release_jobs(recorded, setup)
+    assert (offline.event, offline.cut_short) == (online.event, online.cut_short)
+    for field in ("stage_t", "stage_depth", "force_t", "force", "marker_t", "markers"):
+        assert np.array_equal(getattr(offline.record, field), getattr(online.record, field)), field
+    # Without the node's word the recording's release runs on past the cut, to where the mesh settles.
+    [whole] = release_jobs(bag, setup)
+    assert whole.cut_short == "" and whole.event.t_end > event.t_end + 10.0

@@ -33,7 +33,7 @@ from rheo_ros.identification.pipeline import (
     undetermined,
     without_undetermined,
 )
-from rheo_ros.io.bag import bag_samples, read_params, require_bag
+from rheo_ros.io.bag import bag_samples, read_params, release_cuts, require_bag
 from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.files import write_text_atomic
@@ -108,7 +108,11 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
            "object": stream.add_object}
     jobs: list[Job] = []
     deepest = 0.0
+    cuts = release_cuts(bag)   # releases the node closed on silence: closed here at the same samples
     for name, t, data in checked_samples(bag, setup):
+        while cuts and t > cuts[0][0]:
+            stream.replay_cut(*cuts.pop(0))
+            jobs += stream.ready_jobs(silent=stream.streams)
         add[name](t, data)
         jobs += stream.ready_jobs()
         if name == "stage":

@@ -28,6 +28,8 @@ from rheo_ros.io.messages import (
     MARKERS_TOPIC,
     OBJECT_TOPIC,
     OBJECT_TYPE,
+    PHASE_TOPIC,
+    PHASE_TYPE,
     STAGE_TOPIC,
     TACTILE_TOPIC,
     TOPIC_TYPES,
@@ -40,6 +42,7 @@ from rheo_ros.io.messages import (
     read_marker_array,
     read_object_hint,
     read_pressure_image,
+    read_release_cut,
     stamp_ns,
 )
 from rheo_ros.record import Record
@@ -343,11 +346,13 @@ def mcap_damage(mcap: Path) -> str | None:
 def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
     with bag_reader(path) as reader:
         conns = [c for c in reader.connections if c.topic in topics]
-        expected = {**TOPIC_TYPES, OBJECT_TOPIC: OBJECT_TYPE}
+        expected = {**TOPIC_TYPES, OBJECT_TOPIC: OBJECT_TYPE, PHASE_TOPIC: PHASE_TYPE}
         for c in conns:
             if c.topic in expected and c.msgtype != expected[c.topic]:
                 raise BagError(f"{path}: {c.topic}: a connection of type {c.msgtype}; the contract's is "
                                f"{expected[c.topic]}")
+        if not conns:
+            return   # rosbags reads every connection when given none
         for conn, t, raw in reader.messages(connections=conns):
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -418,6 +423,28 @@ def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
             yield stream, stamp_ns(msg) * 1e-9, read(msg)
         except MessageError as exc:
             raise BagError(f"{path}: {topic}: {exc}") from None
+
+
+def release_cuts(path: str | Path) -> list[tuple[float, str]]:
+    """The releases a node closed before they settled, as the recording's ``/rheo/phase``
+    says (``read_release_cut``: the latest sample the node had, the release's end, s,
+    and why), in time order; none where the bag
+    did not record that topic. ``rheo analyze`` closes those releases there too: a node
+    that heard nothing for ``estimator.stale_after`` s of its wall clock fitted what it
+    had, while a recording may go on at later stamps (a simulator that stalled).
+
+    Raises:
+        BagError: unreadable bag or a /rheo/phase message that does not decode.
+    """
+    cuts = []
+    for _, msg in _messages(Path(path), (PHASE_TOPIC,)):
+        try:
+            cut = read_release_cut(msg)
+        except AttributeError as exc:
+            raise BagError(f"{path}: {PHASE_TOPIC}: {exc}") from None
+        if cut is not None:
+            cuts.append(cut)
+    return sorted(cuts)
 
 
 def write_run(run: Any, params: dict[str, Any], out: str | Path) -> dict[str, int]:

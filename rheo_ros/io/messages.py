@@ -182,14 +182,28 @@ def _time(types: MessageTypes, t: float) -> Any:
     return types.lookup("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
-def phase_message(types: MessageTypes, event: Any) -> Any:
-    """``/rheo/phase`` from a ``PhaseEvent``: stamped with the sample that completed it."""
+def phase_message(types: MessageTypes, event: Any, cut_short: str = "") -> Any:
+    """``/rheo/phase`` from a ``PhaseEvent``: stamped with the sample that completed it;
+    ``cut_short``: why a node closed this release before the mesh settled."""
     msg = types.lookup(PHASE_TYPE)(
         header=_header(types, ""), experiment=event.experiment, name=event.name,
         start=_time(types, event.t_start), end=_time(types, event.t_end), samples=event.samples,
+        cut_short=cut_short,
     )
     _stamp(msg, int(round(event.t_found * 1e9)))
     return msg
+
+
+def read_release_cut(msg: Any) -> tuple[float, float, str] | None:
+    """``(found, end, why)`` of a Phase message saying a node closed a release before it
+    settled (the data stopped): the latest sample stamp the node had then, the release's
+    end (s) and why; None for any other phase. A recording made before Phase had
+    ``cut_short`` has none."""
+    why = getattr(msg, "cut_short", "")
+    if msg.name != "release" or not why:
+        return None
+    end = int(msg.end.sec) * 1_000_000_000 + int(msg.end.nanosec)
+    return stamp_ns(msg) * 1e-9, end * 1e-9, why
 
 
 def estimate_message(types: MessageTypes, update: Any) -> Any:

@@ -9,7 +9,11 @@ model's prediction of what is measured, for an overlay in Foxglove or PlotJuggle
 - ``/rheo/measured/force`` and ``/rheo/prediction/force`` (``geometry_msgs/WrenchStamped``:
   ``wrench.force.y`` = total bottom force, N, positive pressing), stamped with each
   tactile frame's stamp;
-- ``/rheo/prediction/markers`` (``geometry_msgs/PoseArray``, like ``/markers/mesh``).
+- ``/rheo/prediction/markers`` (``geometry_msgs/PoseArray``, like ``/markers/mesh``);
+
+and on ``/rheo/phase`` a release it closed because every topic went silent (its
+``cut_short`` says why): ``rheo analyze`` of a recording that holds it closes that
+release there too, whatever the recording holds after.
 
 The callbacks only convert messages and feed the core (``rheo_ros.online``). The
 identification runs in two lanes, each a worker process, so that nothing waits behind
@@ -32,7 +36,7 @@ from geometry_msgs.msg import PoseArray, WrenchStamped
 from rclpy._rclpy_pybind11 import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rheo_ros_interfaces.msg import Diagnosis, Estimate, ObjectHint, Pool
+from rheo_ros_interfaces.msg import Diagnosis, Estimate, ObjectHint, Phase, Pool
 from sensor_msgs.msg import Image, JointState
 
 from rheo_ros.config.setup import Setup
@@ -43,6 +47,7 @@ from rheo_ros.io.messages import (
     ESTIMATE_TOPIC,
     MARKERS_TOPIC,
     OBJECT_TOPIC,
+    PHASE_TOPIC,
     POOL_TOPIC,
     STAGE_TOPIC,
     TACTILE_TOPIC,
@@ -51,6 +56,7 @@ from rheo_ros.io.messages import (
     MessageTypes,
     diagnosis_message,
     estimate_message,
+    phase_message,
     pool_message,
     read_joint_state,
     read_marker_array,
@@ -94,6 +100,9 @@ class EstimatorNode(Node):
         self.estimates = self.create_publisher(Estimate, ESTIMATE_TOPIC, LATCHED_QOS)
         self.verdicts = self.create_publisher(Diagnosis, DIAGNOSIS_TOPIC, LATCHED_QOS)
         self.pools = self.create_publisher(Pool, POOL_TOPIC, LATCHED_QOS)
+        # A release this node closes on silence (its wall clock: the data stopped) is said
+        # on /rheo/phase, so a recording of the run is analysed as the node analysed it.
+        self.phases = self.create_publisher(Phase, PHASE_TOPIC, LATCHED_QOS)
         # What the robot says of the next push's object: latched, the stage's goals.
         self.create_subscription(ObjectHint, OBJECT_TOPIC, self.on_object, LATCHED_QOS)
         self.verdict = ""    # the last experiment's model verdict, while it says the base model misfits
@@ -177,8 +186,11 @@ class EstimatorNode(Node):
         silent = self.silence.silent()
         if self.silence.all_silent and self.core.release_open:
             for e in self.core.finish(f"no message on any topic for {self.stale_after:g} s"):
-                self.get_logger().warning(f"experiment {e.experiment}: release closed at {e.t_end:.3f} s: "
-                                          "the data stopped before the specimen settled")
+                why = self.core.cut_short(e)
+                if why:   # recorded, a recording's rheo analyze closes this release here too
+                    self.phases.publish(phase_message(self.types, e, cut_short=why))
+                    self.get_logger().warning(f"experiment {e.experiment}: release closed at {e.t_end:.3f} s: "
+                                              "the data stopped before the specimen settled")
         for job in self.core.ready_jobs(silent):
             self.closed_jobs.put((job, arrival))
 

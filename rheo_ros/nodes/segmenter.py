@@ -74,8 +74,8 @@ class SegmenterNode(Node):
         for e in events:
             self.publish(e)
 
-    def publish(self, e: PhaseEvent) -> None:
-        self.phases.publish(phase_message(self.types, e))
+    def publish(self, e: PhaseEvent, cut_short: str = "") -> None:
+        self.phases.publish(phase_message(self.types, e, cut_short))
         self.get_logger().info(f"experiment {e.experiment}: {e.name} {e.t_start:.3f} .. {e.t_end:.3f} s")
 
     def on_stage(self, msg: JointState) -> None:
@@ -93,8 +93,9 @@ class SegmenterNode(Node):
         stopped (the robot let go and moved on); the release ends at its last frame, as
         the estimator ends it."""
         if self.silence.all_silent and self.core.state == "release":
-            for e in self.core.close_release(f"no message on any topic for {self.stale_after:g} s"):
-                self.publish(e)
+            why = f"no message on any topic for {self.stale_after:g} s"
+            for e in self.core.close_release(why):
+                self.publish(e, cut_short=why if self.core.release_reason == why else "")
 
     def publish_diagnostics(self) -> None:
         self.close_when_silent()

@@ -556,6 +556,20 @@ class OnlineEstimator:
                 self._cut_short[e.experiment] = why
         return self._took(events)
 
+    def cut_short(self, event: PhaseEvent) -> str:
+        """Why ``event`` (a release ``finish`` returned) was closed before the mesh
+        settled; empty where the frames showed it settled."""
+        return self._cut_short.get(event.experiment, "") if event.name == "release" else ""
+
+    def replay_cut(self, t_found: float, t_end: float, why: str) -> list[PhaseEvent]:
+        """A node's recorded ``finish`` (``io.bag.release_cuts``), replayed on a recording
+        once its samples up to ``t_found`` are in: the release open then, if it began by
+        ``t_end``, closes as the node closed it. The caller then calls ``ready_jobs``
+        with every stream silent, as the node did."""
+        if not self.release_open or self.segmenter.release_began > t_end:
+            return []
+        return self.finish(why)
+
     def ready_jobs(self, silent: Iterable[str] = ()) -> list[Job]:
         """Completed phases whose every stream has passed their end, and the interim
         release jobs due (every ``release_interval`` s of data into a release).

@@ -406,6 +406,13 @@ class PhaseSegmenter:
         self._trim(self._judged - W - 1e-6)
         return []
 
+    @property
+    def release_began(self) -> float:
+        """Stamp (s) where the open release began; inf when none is open."""
+        if self.state != "release" or self._t_release is None:
+            return np.inf
+        return self._t_release
+
     def judge_ahead_of_stage(self) -> list[PhaseEvent]:
         """Judge every marker frame of an open release, also those the stage stream has not
         reached (it stopped): the release's end if the mesh settled; nothing otherwise."""
@@ -422,7 +429,9 @@ class PhaseSegmenter:
         if settled:
             return settled
         t_end = self._frames[-1][0] if self._frames else self._t_release
-        return self._end_release(max(t_end, self._t_release), t_end, why)
+        # Found at the latest sample heard on any topic: a recording replays the close
+        # after exactly those samples (io.bag.release_cuts).
+        return self._end_release(max(t_end, self._t_release), max(t_end, *self._last.values()), why)
 
     def _end_release(self, t_end: float, t_found: float, why: str) -> list[PhaseEvent]:
         t_release = self._t_release
