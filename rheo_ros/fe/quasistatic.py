@@ -25,6 +25,7 @@ the stage for seconds.
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,7 +35,8 @@ from scipy.sparse.linalg import splu
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh
 from rheo_ros.models.effects import Model, Release
-from rheo_ros.models.response import respond, respond_voigt_spring, stage_program
+from rheo_ros.models.elements import Element
+from rheo_ros.models.response import Response, respond, respond_voigt_spring, stage_program
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,9 @@ class QuasiStaticFE:
         self._segments = None if segment_edges is None else self.fe_mesh.segment_integrals(segment_edges)
         self._markers = self.fe_mesh.interpolation(mesh.nodes)
         self._shapes: dict[float, tuple[ElasticShape, ...]] = {}   # gamma: (shape, its derivatives in gamma)
+        # The last material responses (see _response): a fit's finite-difference column in
+        # gamma or in an effect's parameter leaves the rheology and the times alone.
+        self._responses: dict[tuple, Response] = {}
         self._table: np.ndarray | None = None
 
     def finer(self) -> QuasiStaticFE:
@@ -233,6 +238,22 @@ class QuasiStaticFE:
         k, m = self.mesh.nodes.size, self._table.shape[1] // 2
         return (row[:k], row[k:m]), (row[m:m + k], row[m + k:])
 
+    RESPONSES = 8   # kept: a Jacobian's columns, and the trial step beside them
+
+    def _response(self, element: Element, profile: StageProfile, t: np.ndarray) -> Response:
+        """``respond`` of ``element`` to ``profile``'s program at ``t``, kept for the next
+        calls with the same element, profile and times (compared whole: a key of the
+        times' checksum only finds the candidate)."""
+        key = (element, profile, t.size, zlib.crc32(t.data))
+        kept = self._responses.get(key)
+        if kept is not None and np.array_equal(kept.t, t):
+            return kept
+        r = respond(element, stage_program(profile), t)
+        if len(self._responses) >= self.RESPONSES:
+            self._responses.pop(next(iter(self._responses)), None)
+        self._responses[key] = r
+        return r
+
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,
         force_t: np.ndarray, marker_t: np.ndarray, tabulated: bool = False,
@@ -245,7 +266,7 @@ class QuasiStaticFE:
         t = np.concatenate([force_t, marker_t, [t_let_go]])
         order = np.argsort(t, kind="stable")
         spring = model.voigt_spring
-        r = (respond(model.rheology(), stage_program(profile), t[order]) if spring is None else
+        r = (self._response(model.rheology(), profile, t[order]) if spring is None else
              respond_voigt_spring(model.rheology(), spring, self.mesh.height, stage_program(profile), t[order]))
         scaled, depth = np.empty_like(t), np.empty_like(t)
         depth[order] = r.strain
