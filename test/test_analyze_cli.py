@@ -138,7 +138,8 @@ CASES = {
     "not a bag": (lambda tmp: [str(tmp)], r"not a rosbag2 directory"),
     "truncated mcap": (lambda tmp: [str(damaged(tmp, "truncated"))], r"cannot read bag"),
     "corrupted mcap": (lambda tmp: [str(damaged(tmp, "corrupted"))],
-                       r"clean_short_keep\.mcap: the chunk at byte \d+ \([\d.]+-[\d.]+ s\) cannot be decoded .*: corrupt$"),
+                       r"clean_short_keep\.mcap: the chunk at byte \d+ \([\d.]+-[\d.]+ s\) cannot be decoded .*: corrupt; "
+                       r"`rheo bag repair \S+` rebuilds the bag from the chunks that read$"),
     "bad params file": (bad_params, r"tactile.rows"),
     "unknown effect": (lambda tmp: [str(BAGS / "clean_short_keep"), "--add", "gravity"], r"unknown effect 'gravity'"),
 }

@@ -6,12 +6,12 @@ keep too short for the closed form) exits 0 with the reason named and no number 
 closed form has none. Then properties (hypothesis): any bytes or field values through the
 bag reader's decoding, and any value of any parameter through the parameters check.
 
-Count: ``CASES`` holds 102 distinct inputs (a command and what it is given), 101 refused
+Count: ``CASES`` holds 105 distinct inputs (a command and what it is given), 104 refused
 with exit 2 and one usable; none is run through the command line by another test. With
-the 13 of ``test_analyze_cli.CASES`` (disjoint from these): 115 in all
+the 13 of ``test_analyze_cli.CASES`` (disjoint from these): 118 in all
 (``test_the_list_is_long_enough`` holds the figures). ``Case.elsewhere`` names the 19 of
-the 102 whose input another test also checks below the command line (check_params,
-read_params, read_bag) or through another command: 83 are new at every level. Not
+the 105 whose input another test also checks below the command line (check_params,
+read_params, read_bag) or through another command: 86 are new at every level. Not
 repeated here: ``rheo play --loop 0 / -1`` and ``--topics /nobody`` (test_analyze_cli),
 ``rheo simulate --effect nope``, ``--seed -1`` and eight parameter values
 (test_package), ``rheo bag repair`` of a whole bag and ``rheo analyze`` of a killed
@@ -19,11 +19,15 @@ recording (test_nodes).
 
 Fast on purpose (the suite's budget): bad bags are a few messages written here or the
 small reference bag's files edited, and every case but the usable one fails before any
-fit runs.
+fit runs. Below the table, bad input that is usable (a right result, a warning naming the
+defect): a corrupt chunk repaired and analysed with its hole named, samples out of stamp
+order dropped and counted, a keep too short named in the verdict, a type not installed
+skipped by ``rheo play``.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import shutil
@@ -94,6 +98,35 @@ def with_mcap(tmp: Path, change: Callable[[bytes], bytes | None]) -> Path:
         mcap.unlink()
     else:
         mcap.write_bytes(data)
+    return bag
+
+
+def metadata_a_folder(tmp: Path) -> Path:
+    """The reference bag with a folder where its metadata.yaml was."""
+    bag = copied(tmp)
+    (bag / "metadata.yaml").unlink()
+    (bag / "metadata.yaml").mkdir()
+    return bag
+
+
+def corrupt_chunk(tmp: Path, index: int = 3) -> tuple[Path, Any]:
+    """The reference bag with 64 random bytes over the data of its chunk ``index`` (the
+    fourth: 46.55-62.08 s, inside the keep): the zstd frame breaks. The bag and the chunk."""
+    from test_bag_reader_units import chunks
+
+    bag = copied(tmp)
+    mcap = next(bag.glob("*.mcap"))
+    offset, chunk = chunks(bag)[index]
+    data = bytearray(mcap.read_bytes())
+    data[offset + 80:offset + 144] = np.random.default_rng(3).bytes(64)   # past the chunk's header
+    mcap.write_bytes(bytes(data))
+    return bag, chunk
+
+
+def with_original_in_the_way(tmp: Path) -> Path:
+    """A bag with a corrupt chunk, a file already where repair keeps the original."""
+    bag, _ = corrupt_chunk(tmp)
+    (tmp / "clean_short_keep.mcap.damaged").write_text("an earlier repair's")
     return bag
 
 
@@ -265,6 +298,9 @@ CASES: dict[str, Case] = {
                                r"nope: not a rosbag2 directory \(no metadata.yaml\)$"),
     "bag path is a file": Case(analyze(lambda tmp: file_with(tmp, "x", "bag")),
                                r"bag: not a rosbag2 directory \(no metadata.yaml\)$"),
+    "metadata.yaml a folder": Case(analyze(lambda tmp: metadata_a_folder(tmp)),
+                                   r"bag/metadata.yaml: is a directory, not a file: a rosbag2 directory's "
+                                   r"metadata.yaml is a YAML file$"),
     "metadata empty": Case(analyze(lambda tmp: file_with(copied(tmp), "", "metadata.yaml").parent),
                            r"bag/metadata.yaml: no rosbag2_bagfile_information mapping$"),
     "metadata a YAML list": Case(analyze(lambda tmp: with_metadata(tmp, lambda info: [1, 2])),
@@ -451,8 +487,8 @@ CASES: dict[str, Case] = {
     "play a zero-byte MCAP": Case(play(lambda tmp: with_mcap(tmp, lambda data: b"")),
                                   r"bag: cannot read bag: clean_short_keep.mcap is empty \(0 bytes\)$"),
     "play a type not installed": Case(play(uninstalled_type),
-                                      r"bag: /thing: type no_such_msgs/msg/Thing is not installed here; give --topics "
-                                      r"without it$"),
+                                      r"bag: /thing: type no_such_msgs/msg/Thing is not installed here; nothing else "
+                                      r"to play$"),
     "play --rate 0": Case(play(lambda tmp: BAG, "--rate", "0"), r"argument --rate: 0 must be a finite number above 0$"),
     "play --rate nan": Case(play(lambda tmp: BAG, "--rate", "nan"),
                             r"argument --rate: nan must be a finite number above 0$"),
@@ -460,6 +496,12 @@ CASES: dict[str, Case] = {
     # rheo bag repair, rheo record
     "repair a folder that does not exist": Case(lambda tmp: ["bag", "repair", str(tmp / "nope")],
                                                 r"nope: 0 .mcap files; a recording has one$"),
+    "repair a bag whose metadata.yaml is a folder": Case(lambda tmp: ["bag", "repair", str(metadata_a_folder(tmp))],
+                                                         r"bag/metadata.yaml: is a directory, not a file"),
+    "repair a corrupt bag where its original would go": Case(
+        lambda tmp: ["bag", "repair", str(with_original_in_the_way(tmp))],
+        r"clean_short_keep.mcap.damaged: exists \(an earlier repair\?\); move it away first: the original goes "
+        r"there$"),
     "repair a zero-byte recording": Case(lambda tmp: ["bag", "repair", str(file_with(tmp, b"", "x.mcap").parent)],
                                          r"x.mcap: no complete message in the stream"),
     "record into a bag that exists": Case(lambda tmp: ["record", "/stage/joint_states", "--out", str(tmp)],
@@ -516,14 +558,132 @@ def test_a_bad_input_is_one_line_naming_what_is_wrong(tmp_path, capsys, name):
 
 
 def test_the_list_is_long_enough():
-    """The figures of the module's docstring: 102 here (one usable), 13 in test_analyze_cli,
+    """The figures of the module's docstring: 105 here (one usable), 13 in test_analyze_cli,
     disjoint; 19 of these also checked below the command line or through another command."""
     from test_analyze_cli import CASES as ANALYZE_CASES
 
-    assert len(CASES) == 102 and len(ANALYZE_CASES) == 13 and not set(CASES) & set(ANALYZE_CASES)
+    assert len(CASES) == 105 and len(ANALYZE_CASES) == 13 and not set(CASES) & set(ANALYZE_CASES)
     assert sum(c.code == 0 for c in CASES.values()) == 1
     assert sum(bool(c.elsewhere) for c in CASES.values()) == 19
     assert len(CASES) - 19 + len(ANALYZE_CASES) >= 60
+
+
+# -- bad input that is usable: a right result, with the defect named ------------------------
+
+def test_a_corrupt_chunk_is_repaired_saying_what_was_lost_and_the_hole_is_named(tmp_path, capsys):
+    """A whole bag one of whose chunks does not decompress: ``rheo analyze`` refuses naming
+    the chunk and saying to repair; ``rheo bag repair`` rebuilds the bag from the chunks
+    that read, keeps the original beside it and says how many messages per topic and
+    which span were lost; the repaired bag analyses (the hole, 15.5 s inside the keep,
+    leaves the parameters right) with a warning per topic naming the gap."""
+    bag, chunk = corrupt_chunk(tmp_path)
+    damaged = next(bag.glob("*.mcap")).read_bytes()
+    span = rf"\({chunk.message_start_time * 1e-9:.3f}-{chunk.message_end_time * 1e-9:.3f} s\)"
+    code, out, err = run_cli(["analyze", str(bag), "--quiet", "--no-discover"], capsys)
+    assert code == 2 and out == "" and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert re.search(rf"^rheo: error: \S+/bag/clean_short_keep.mcap: the chunk at byte \d+ {span} cannot be "
+                     rf"decoded .*: corrupt; `rheo bag repair \S+/bag` rebuilds the bag from the chunks that read$",
+                     err.strip()), err
+
+    code, out, err = run_cli(["bag", "repair", str(bag)], capsys)
+    assert code == 0 and err == "", err
+    rebuilt, lost = out.strip().splitlines()
+    assert rebuilt.endswith("(the original kept as clean_short_keep.mcap.damaged and "
+                            "bag.metadata.yaml.damaged beside it)"), rebuilt
+    kept = {t: int(n) for n, t in re.findall(r"(\d+) on (/[\w/]+)", rebuilt.split("(")[0])}
+    gone = {t: int(n) for n, t in re.findall(r"(\d+) on (/[\w/]+)", lost.split(":")[1])}
+    assert re.search(rf": 1 chunk\(s\) that did not read, logged {span[2:-2]}$", lost), lost
+    whole = yaml.safe_load((BAG / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert {t: kept[t] + gone[t] for t in kept} == {
+        t["topic_metadata"]["name"]: t["message_count"] for t in whole["topics_with_message_count"]}
+    assert all(gone.values()), lost
+    assert (tmp_path / "clean_short_keep.mcap.damaged").read_bytes() == damaged   # the original, kept whole
+    assert (tmp_path / "bag.metadata.yaml.damaged").read_text() == (BAG / "metadata.yaml").read_text()
+
+    code, out, err = run_cli(["analyze", str(bag), "--quiet", "--no-discover"], capsys)
+    assert code == 0 and "Traceback" not in err, err
+    for topic in (STAGE_TOPIC, TACTILE_TOPIC, MARKERS_TOPIC):
+        assert re.search(rf"^rheo analyze: warning: {topic}: no message for 15\.\d s \(46\.5\d\d-62\.\d\d\d s, a lost "
+                         r"chunk or a sensor that stopped\): the analysis fits the samples around the gap", err,
+                         re.MULTILINE), err
+    assert re.search(r"^three_element: E 3\.3[23]\d*e\+04 \+- ", out, re.MULTILINE), out
+
+
+def reordered(tmp: Path) -> Path:
+    """The independent generator's short push (a 3 s keep) with two tactile frames' header
+    stamps swapped (frames 40 and 41) and marker frame 20 logged after frame 21: one
+    message of each topic arrives stamped before the one before it."""
+    from rosbags.highlevel import AnyReader
+
+    from rheo_ros.io.bag import read_params, typestore
+
+    source = short_keep(tmp / "source", 3.0)
+    rows = []
+    with AnyReader([source], default_typestore=typestore()) as reader:
+        counts: dict[str, int] = {}
+        for conn, t, raw in reader.messages():
+            k = counts[conn.topic] = counts.get(conn.topic, -1) + 1
+            rows.append([conn.topic, k, t, reader.deserialize(raw, conn.msgtype)])
+    frames = {(topic, k): row for row in rows for topic, k in [row[:2]]}
+    a, b = frames[TACTILE_TOPIC, 40][3].header, frames[TACTILE_TOPIC, 41][3].header
+    a.stamp, b.stamp = b.stamp, a.stamp
+    frames[MARKERS_TOPIC, 20][2] = frames[MARKERS_TOPIC, 21][2] + 1_000_000   # logged 1 ms after the next frame
+    with BagWriter(tmp / "bag", read_params(source), compress=False) as w:
+        for topic, _, t, msg in sorted(rows, key=lambda row: row[2]):
+            w.write(topic, t, msg)
+    return tmp / "bag"
+
+
+def test_samples_out_of_stamp_order_are_dropped_as_the_node_drops_them_and_counted(tmp_path, capsys):
+    """Two tactile frames swapped, a marker frame logged late: the core drops the one
+    stamped before its topic's latest (the node does, counting it on /diagnostics as
+    "out of order"); ``rheo analyze`` says so, per topic, with the count."""
+    bag = reordered(tmp_path)
+    code, out, err = run_cli(["analyze", str(bag), "--quiet", "--no-discover"], capsys)
+    assert code == 0 and "Traceback" not in err, err
+    for topic in (TACTILE_TOPIC, MARKERS_TOPIC):
+        assert f"rheo analyze: warning: {topic}: 1 message(s) stamped not after the one before (out of header-stamp " \
+               "order) dropped, as the estimator node drops them" in err, err
+    assert f"warning: {STAGE_TOPIC}: " not in err, err   # the stage's stamps all in order
+    assert re.search(r"^three_element: E 3\.3[23]\d*e\+04 \+- ", out, re.MULTILINE), out
+
+
+def test_the_verdict_names_a_keep_too_short_never_a_plain_adequate(tmp_path, capsys):
+    """A keep of 0.3 s with the diagnosis on: the closed form determines nothing and an
+    effect that shows in the keep (relaxation_branch) could not show; the verdict says
+    "adequate" only with the keep named too short (text and JSON, the contract's keys)."""
+    bag, report = short_keep(tmp_path, 0.3), tmp_path / "r.json"
+    code, out, err = run_cli(["analyze", str(bag), "--quiet", "--json", str(report)], capsys)
+    assert code == 0 and "Traceback" not in err, err
+    short = (r"Verdict: three_element is adequate for these data\. But the keep \(0\.3 s\) was too short for the "
+             r"force to relax visibly: c2 \(and E, c1, gamma\) not determined by the closed form because the keep is "
+             r"too short, and relaxation_branch, which shows in the keep, could not show: adequate for the phases "
+             r"recorded, not judged on the keep")
+    assert re.search(short, out), out
+    diagnosis = json.loads(report.read_text())["diagnosis"]
+    assert re.search(short, diagnosis["evidence"]) and {"adequate", "missing_effect", "candidates"} <= set(diagnosis)
+    # The node says the same (one computation: its core over the bag, /rheo/diagnosis's evidence).
+    from rheo_ros.app.analyze import estimate_bag
+
+    node: list = []
+    estimate_bag(str(bag), diagnoses=node)
+    assert node and node[-1].evidence.endswith(diagnosis["evidence"].split("Verdict: ", 1)[1]), node[-1].evidence
+
+
+def test_play_skips_a_topic_whose_type_is_not_installed_and_plays_the_rest(tmp_path, capsys):
+    """A bag of /thing (a type not installed here) and /stage/joint_states: one warning
+    line naming the topic and its type, the rest played (with no type left: refused,
+    ``CASES``)."""
+    with BagWriter(tmp_path / "bag", None, topics={"/thing": "no_such_msgs/msg/Thing", **TOPIC_TYPES},
+                   definitions={"no_such_msgs/msg/Thing": "int32 x\n"}, compress=False) as w:
+        w.write("/thing", 0, w.store.types["no_such_msgs/msg/Thing"](x=1))
+        w.write(STAGE_TOPIC, 1, JointStateEncoder(w.types)(1, 0.0, 0.0))
+    code, out, err = run_cli(["play", str(tmp_path / "bag"), "--clock"], capsys)
+    assert code == 0 and "Traceback" not in err, err
+    assert err.strip() == f"rheo play: warning: {tmp_path / 'bag'}: /thing: type no_such_msgs/msg/Thing is not " \
+                          "installed here: not played", err
+    assert out.strip() == f"{tmp_path / 'bag'}: played 1 on /stage/joint_states, 0 on /tactile/pressure, " \
+                          "0 on /markers/mesh", out
 
 
 # -- properties: decoding and the parameters check ----------------------------------------

@@ -226,7 +226,7 @@ def test_bag_repair_rebuilds_a_truncated_recording_and_refuses_what_is_not_one(t
     (killed / "killed.mcap").write_bytes(data[:cut])
     with pytest.raises(BagError, match="has a metadata.yaml: a whole bag, nothing to repair"):
         repair_bag(source)
-    counts = repair_bag(killed, read_params(source))
+    counts = repair_bag(killed, read_params(source)).counts
     assert (killed / "metadata.yaml").is_file() and (tmp_path / "killed.mcap.killed").stat().st_size == cut
     whole = {s: [t for k, t, _ in bag_samples(source) if k == s] for s in ("stage", "image", "markers")}
     got = {s: [t for k, t, _ in bag_samples(killed) if k == s] for s in ("stage", "image", "markers")}

@@ -16,6 +16,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from rheo_ros.config.setup import Setup, check_params, load_params
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
@@ -45,6 +47,7 @@ from rheo_ros.online.segmenter import PhaseEvent
 from rheo_ros.record import RecordError
 
 TOPIC_OF = {"stage": STAGE_TOPIC, "image": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
+CORE_TOPIC = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}   # the core's stream names
 
 
 def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[str, Any]:
@@ -63,10 +66,19 @@ def bag_params(bag: str | Path, params_file: str | Path | None = None) -> dict[s
     return check_params(params, f"{path}: parameters")
 
 
-def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any]]:
+# A topic silent for longer than this many of its median intervals, and at least GAP_MIN
+# s, has a hole (a chunk lost, rheo bag repair; a sensor that stopped): the fit uses the
+# samples around it, and what shows only inside it goes unseen, so the analysis says so.
+GAP_INTERVALS = 20
+GAP_MIN = 1.0
+
+
+def checked_samples(bag: str | Path, setup: Setup, warnings: list[str] | None = None
+                    ) -> Iterator[tuple[str, float, Any]]:
     """The bag's measurement samples (``bag_samples``), each through the estimator node's
     checks (``io.checks.SampleCheck``: shapes, clock jumps, units, NaN), and at the end a
-    topic with no message, or whose header stamps do not advance, refused.
+    topic with no message, or whose header stamps do not advance, refused; a hole in a
+    topic's stamps (``GAP_INTERVALS``) appended to ``warnings``.
 
     Raises:
         BagError: names the file, the topic and what is wrong.
@@ -77,6 +89,7 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
     # run (stamps all 0, every message twice), not a reorder.
     stale, latest = dict.fromkeys(TOPIC_OF, 0), dict.fromkeys(TOPIC_OF, -float("inf"))
     check = SampleCheck(setup)
+    stamps: dict[str, list[float]] = {stream: [] for stream in TOPIC_OF}
     for stream, t, data in bag_samples(bag):
         if stream in TOPIC_OF:
             problem = check.problem(TOPIC_OF[stream], t, data)
@@ -84,6 +97,7 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
                 raise BagError(f"{bag}: {TOPIC_OF[stream]}: {problem}")
             stale[stream] += t <= latest[stream]
             latest[stream] = max(latest[stream], t)
+            stamps[stream].append(t)
         counts[stream] = counts.get(stream, 0) + 1
         yield stream, t, data
     for stream in TOPIC_OF:
@@ -93,11 +107,28 @@ def checked_samples(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float,
             raise BagError(f"{bag}: {TOPIC_OF[stream]}: {stale[stream]} of {counts[stream]} header stamps are not "
                            f"after the one before (the latest {latest[stream]:.3f} s): the stamps do not advance "
                            "(duplicated messages, or a header stamp not filled in?)")
+    if warnings is not None:
+        warnings += [f"{TOPIC_OF[stream]}: {gap}" for stream, t in stamps.items() for gap in stamp_gaps(t)]
 
 
-def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
+def stamp_gaps(stamps: Sequence[float]) -> list[str]:
+    """Each hole in a topic's header stamps (longer than ``GAP_INTERVALS`` of its median
+    interval and ``GAP_MIN`` s) in words."""
+    t = np.sort(np.asarray(stamps, float))
+    steps = np.diff(t)
+    if steps.size < 2:
+        return []
+    limit = max(GAP_MIN, GAP_INTERVALS * float(np.median(steps)))
+    return [f"no message for {steps[k]:.3g} s ({t[k]:.3f}-{t[k + 1]:.3f} s, a lost chunk or a sensor that "
+            f"stopped): the analysis fits the samples around the gap; what shows only inside it goes unseen"
+            for k in np.flatnonzero(steps > limit)]
+
+
+def release_jobs(bag: str | Path, setup: Setup, warnings: list[str] | None = None) -> list[Job]:
     """Each push's release job, as the estimator node makes it from the bag (a release
-    still open at the end of the bag closed there, and said so).
+    still open at the end of the bag closed there, and said so). ``warnings``: what the
+    bag's samples lacked is appended to it (a hole in a topic; samples out of stamp order,
+    which the core drops as the node does, counted as the node's /diagnostics counts them).
 
     Raises:
         BagError: unreadable bag, missing topic, malformed message.
@@ -109,7 +140,7 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
     jobs: list[Job] = []
     deepest = 0.0
     cuts = release_cuts(bag)   # releases the node closed on silence: closed here at the same samples
-    for name, t, data in checked_samples(bag, setup):
+    for name, t, data in checked_samples(bag, setup, warnings):
         while cuts and t > cuts[0][0]:
             stream.replay_cut(*cuts.pop(0))
             jobs += stream.ready_jobs(silent=stream.streams)
@@ -119,6 +150,10 @@ def release_jobs(bag: str | Path, setup: Setup) -> list[Job]:
             deepest = max(deepest, float(data))
     stream.finish()
     jobs += stream.ready_jobs(silent=stream.streams)
+    if warnings is not None:
+        warnings += [f"{CORE_TOPIC[s]}: {n} message(s) stamped not after the one before (out of header-stamp order) "
+                     "dropped, as the estimator node drops them (its /diagnostics 'out of order'): the analysis went "
+                     "without them" for s, n in stream.rejected.items() if n]
     releases = [j for j in jobs if j.event.name == "release"]
     min_depth = setup.segmenter_config().min_depth
     if not releases and 0.0 < deepest < min_depth:
@@ -166,14 +201,15 @@ def analyze(
     params = bag_params(bag, params_file)
     setup = Setup(params)
     say(f"reading {bag}")
-    releases = release_jobs(bag, setup)
+    said: list[str] = []   # what the bag's samples lacked: every push's report carries it
+    releases = release_jobs(bag, setup, said)
     pushes = []
     for number, job in enumerate(releases, 1):
         if len(releases) > 1:
             say(f"experiment {number} of {len(releases)} (t {job.event.t_start:.2f} s to {job.event.t_end:.2f} s)")
         earlier = pushes[-1].base.estimate if pushes else None   # the node's final fit of the push before
         pushes.append(_analyze_push(bag, setup, job, number, effects, discover_effects, candidates, say, workers,
-                                    earlier))
+                                    earlier, said))
     if len(pushes) == 1:
         return pushes[0]
     # Every push is an experiment; the report's top level pools the last object's (to_json).
@@ -182,17 +218,18 @@ def analyze(
 
 def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects: Sequence[str],
                   discover_effects: bool, candidates: Sequence[str] | None, say: Progress,
-                  workers: int | None, earlier: Estimate | None = None) -> Analysis:
+                  workers: int | None, earlier: Estimate | None = None, said: Sequence[str] = ()) -> Analysis:
     """One push's analysis: the release job's record (its profile carries the pushes
     before it on the same specimen), closed form, fit (``earlier``: the push before's, a
-    start where the closed form leaves a parameter open), the user's effects, discovery."""
+    start where the closed form leaves a parameter open), the user's effects, discovery; ``said``: what
+    the bag's samples lacked (``release_jobs``), among its warnings."""
     if job.record is None:
         raise RecordError(f"{bag}: experiment {number}: too few samples to identify")
     record = replace(job.record, source=str(bag))
     require_readings(record, TACTILE_TOPIC)   # before any work, naming the topic
     forward = setup.forward_model()
     noise = sensor_noise(record)
-    warnings = [w for w in (job.warning(),) if w] + list(record.sensor.warnings if record.sensor else ())
+    warnings = [*said, *(w for w in (job.warning(),) if w), *(record.sensor.warnings if record.sensor else ())]
     if job.object:
         warnings.append(f"experiment {number}: the goal said {job.object!r} object (/rheo/object): "
                         + ("modelled from rest, a new pool" if job.object == "new" else

@@ -112,7 +112,7 @@ def _play(args: argparse.Namespace) -> int:
     from rheo_ros.nodes.player import play
 
     counts = play(args.bag, args.rate, args.clock, args.loop, args.topics, args.wait_for_subscribers,
-                  args.discovery_timeout)
+                  args.discovery_timeout, warn=lambda line: print(f"rheo play: warning: {line}", file=sys.stderr))
     print(f"{args.bag}: played " + ", ".join(f"{n} on {topic}" for topic, n in counts.items()))
     return 0
 
@@ -122,9 +122,13 @@ def _bag_repair(args: argparse.Namespace) -> int:
     from rheo_ros.io.bag import repair_bag
 
     params = check_params(load_params(args.params_file), args.params_file) if args.params_file else None
-    counts = repair_bag(args.bag, params)
-    print(f"{args.bag}: rebuilt with " + ", ".join(f"{n} on {topic}" for topic, n in counts.items())
-          + f" (the killed file kept as {Path(args.bag).name}.mcap.killed beside it)")
+    repaired = repair_bag(args.bag, params)
+    print(f"{args.bag}: rebuilt with " + ", ".join(f"{n} on {topic}" for topic, n in repaired.counts.items())
+          + f" (the original kept as {' and '.join(p.name for p in repaired.kept)} beside it)")
+    if repaired.spans:
+        lost = ", ".join(f"{n} on {topic}" for topic, n in repaired.lost.items() if n) or "a count the file lacks"
+        spans = ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in repaired.spans)
+        print(f"{args.bag}: lost {lost}: {len(repaired.spans)} chunk(s) that did not read, logged {spans}")
     return 0
 
 
@@ -378,8 +382,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="give up if a topic has no publisher after S seconds (default 10)")
     r.set_defaults(func=_record)
     bag = sub.add_parser("bag", help="bag tools").add_subparsers(dest="bag_command", required=True)
-    rp = bag.add_parser("repair", help="rebuild a recording whose writer was killed (no metadata.yaml) from its "
-                                       "MCAP stream: every complete message")
+    rp = bag.add_parser("repair", help="rebuild a recording whose writer was killed (no metadata.yaml), or a bag "
+                                       "with a corrupt chunk, from what of its MCAP reads (the original kept "
+                                       "beside it); says what was lost")
     rp.add_argument("bag", metavar="DIR")
     rp.add_argument("--params-file", metavar="FILE",
                     help="parameters to store (default: the recorder's recording.params.yaml, if any)")

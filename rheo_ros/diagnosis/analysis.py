@@ -16,6 +16,7 @@ import numpy as np
 
 from rheo_ros.config.setup import Setup
 from rheo_ros.diagnosis.decision import Diagnosis, Verdict, at_bound
+from rheo_ros.diagnosis.evidence import judged_keep, keep_too_short
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.diagnosis.remaining import remaining
 from rheo_ros.fe.quasistatic import QuasiStaticFE
@@ -81,6 +82,13 @@ class Analysis:
         return [{"name": p.name, "t_start": float(p.t_start), "t_end": float(p.t_end)}
                 for p in self.record.profile().phases]
 
+    def evidence(self) -> str:
+        """The verdict's paragraph (``Verdict.evidence``), never a plain "adequate" on a
+        keep the analysis could not judge (``evidence.judged_keep``, as the node says it)."""
+        verdict = Verdict.of(self.diagnoses)
+        short = keep_too_short(self.closed_form, self.record.profile(), self.setup.estimator_config().rate_std)
+        return judged_keep(verdict.evidence, bool(verdict.adequate), short)
+
     def closed_form_std(self) -> dict[str, float | None]:
         """A std for the closed form, which has no covariance of its own: the whole-record
         fit's of the same model combined with the closed form's distance from that fit,
@@ -144,7 +152,7 @@ class Analysis:
             "explained": None if any(v.explained is None for v in verdicts) else all(v.explained for v in verdicts),
             "closest": list(dict.fromkeys(e for v in verdicts for e in v.closest)), "remaining": None,
             "degenerate": [], "leftover": [],   # each push's: experiments
-            "evidence": " ".join(f"Experiment {k}: {v.evidence}" for k, v in zip(numbers, verdicts)),
+            "evidence": " ".join(f"Experiment {k}: {m.evidence()}" for k, m in zip(numbers, members)),
             "experiments": list(numbers),
         }
         others = [k for k in range(1, len(self.experiments) + 1) if k not in numbers]
@@ -180,7 +188,7 @@ class Analysis:
         diagnosis["leftover"] = list(verdict.leftover)
         diagnosis["remaining"] = self.what_remains()
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
-        diagnosis["evidence"] = verdict.evidence if self.diagnoses else "not diagnosed (--no-discover)"
+        diagnosis["evidence"] = self.evidence() if self.diagnoses else "not diagnosed (--no-discover)"
         diagnosis["steps"] = [d.to_json() | {"model": d.model} for d in self.diagnoses]
         return {
             "bag": self.bag,

@@ -9,7 +9,9 @@ import numpy as np
 
 from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_EXPLAINED, EXCESS_SIGMAS, Candidate, undetermined
 from rheo_ros.diagnosis.fits import ModelFit
-from rheo_ros.models.effects import effect_class
+from rheo_ros.experiment import StageProfile
+from rheo_ros.identification.estimate import Estimate
+from rheo_ros.models.effects import catalogue, effect_class
 
 
 def _worst_phase(fit: ModelFit) -> tuple[str, float, tuple[tuple[float, float], ...]]:
@@ -99,3 +101,28 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         else:
             parts.append(f"Verdict: {current.name} is adequate for these data.")
     return " ".join(parts)
+
+
+def keep_too_short(closed_form: Estimate, profile: StageProfile, rate_std: float) -> str:
+    """Why the keep shows too little for "adequate" to stand plain ("": it does not):
+    the force curved too little in it to show its relaxation rate (the closed form's
+    rule, ``pipeline.undetermined``: its relative std above ``rate_std``), so the
+    equations determine no parameter and an effect that shows only in the keep had
+    nowhere to show."""
+    rel = closed_form.residual_rms.get("rate_rel_std", 0.0)
+    if rel <= rate_std:
+        return ""
+    keep = next((p for p in profile.phases if p.name == "keep"), None)
+    length = f" ({keep.t_end - keep.t_start:.3g} s)" if keep is not None else ""
+    unseen = [e for e in catalogue() if set(effect_class(e).shows_in) == {"keep"}]
+    return (f"the keep{length} was too short for the force to relax visibly: c2 (and E, c1, gamma) not "
+            "determined by the closed form because the keep is too short"
+            + (f", and {' and '.join(unseen)}, which shows in the keep, could not show" if unseen else ""))
+
+
+def judged_keep(evidence: str, adequate: bool, short: str) -> str:
+    """The verdict's paragraph, never a plain "adequate" on a keep the analysis could not
+    judge (``short``: ``keep_too_short``'s reason)."""
+    if not (adequate and short):
+        return evidence
+    return f"{evidence} But {short}: adequate for the phases recorded, not judged on the keep; a longer keep decides."

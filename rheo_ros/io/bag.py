@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from struct import error as struct_error
 from typing import Any
@@ -153,6 +153,7 @@ def check_chunks(mcap: Path) -> None:
     from mcap.records import Chunk
     from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
 
+    repair = f"; `rheo bag repair {mcap.parent}` rebuilds the bag from the chunks that read"
     with mcap.open("rb") as fh:
         records = iter(StreamReader(fh, emit_chunks=True).records)
         while True:
@@ -170,9 +171,9 @@ def check_chunks(mcap: Path) -> None:
             try:
                 get_chunk_data_stream(record, validate_crc=True)   # decompressed and checked, not parsed
             except CRCValidationError:
-                raise BagError(f"{where} fails its CRC: its data were changed on disk") from None
+                raise BagError(f"{where} fails its CRC: its data were changed on disk{repair}") from None
             except Exception as exc:   # zstandard's own errors
-                raise BagError(f"{where} cannot be decoded ({type(exc).__name__}: {exc}): corrupt") from None
+                raise BagError(f"{where} cannot be decoded ({type(exc).__name__}: {exc}): corrupt{repair}") from None
 
 
 def require_bag(path: str | Path) -> Path:
@@ -182,7 +183,11 @@ def require_bag(path: str | Path) -> Path:
         BagError: it is not; where it holds an .mcap file (a recording whose writer was
             killed), the message says to repair it (``repair_bag``)."""
     path = Path(path)
-    if not (path / "metadata.yaml").is_file():
+    meta = path / "metadata.yaml"
+    if meta.exists() and not meta.is_file():   # not a killed recording: no repair hint
+        raise BagError(f"{meta}: is a {'directory' if meta.is_dir() else 'special file'}, not a file: a rosbag2 "
+                       "directory's metadata.yaml is a YAML file")
+    if not meta.is_file():
         hint = ("; it holds an .mcap file: a recording whose writer was killed? `rheo bag repair "
                 f"{path}` rebuilds it") if path.is_dir() and any(path.glob("*.mcap")) else ""
         raise BagError(f"{path}: not a rosbag2 directory (no metadata.yaml){hint}")
@@ -192,74 +197,170 @@ def require_bag(path: str | Path) -> Path:
 RECORDING_PARAMS = "recording.params.yaml"   # in a bag being recorded: its parameters until metadata.yaml
 
 
-def repair_bag(path: str | Path, params: dict[str, Any] | None = None) -> dict[str, int]:
-    """Rebuild a recording whose writer was killed (an ``.mcap`` with no summary, no
-    ``metadata.yaml``): every complete message of the MCAP stream, with its channel's
-    definition, into a whole bag in the same folder; the unreadable tail (a chunk cut
-    short) is dropped. Parameters: ``params``, else the recorder's ``recording.params.yaml``.
-    Returns the messages recovered per topic.
+@dataclass(frozen=True)
+class Repaired:
+    """What ``repair_bag`` rebuilt.
+
+    Attributes:
+        counts: the messages in the rebuilt bag, per topic.
+        kept: where the original files went (beside the bag, never deleted).
+        lost: a whole bag's messages in chunks that did not read, per topic (empty for a
+            killed recording: its lost tail was never counted).
+        spans: the log-time spans (s) of the chunks that did not read.
+    """
+
+    counts: dict[str, int]
+    kept: tuple[Path, ...]
+    lost: dict[str, int] = field(default_factory=dict)
+    spans: tuple[tuple[float, float], ...] = ()
+
+
+def repair_bag(path: str | Path, params: dict[str, Any] | None = None) -> Repaired:
+    """Rebuild a bag from what of its MCAP reads, the original kept beside it.
+
+    A recording whose writer was killed (an ``.mcap`` with no summary, no
+    ``metadata.yaml``): every complete message of the stream; the unreadable tail (a chunk
+    cut short) is dropped, the file kept as ``NAME.mcap.killed``. A whole bag one of whose
+    chunks fails its CRC or does not decompress (``check_chunks``): every message of the
+    chunks that read, the file and its metadata kept as ``NAME.mcap.damaged`` and
+    ``NAME.metadata.yaml.damaged``; what was lost is counted from the MCAP's summary.
+    Parameters: ``params``, else the bag's own (a whole bag) or the recorder's
+    ``recording.params.yaml``.
 
     Raises:
-        BagError: not a killed recording (metadata.yaml present, no or several .mcap
-            files), or nothing readable in it.
+        BagError: nothing to repair (a whole bag whose chunks all read), no or several
+            .mcap files, nothing readable, a file in the way of the ones kept.
     """
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
-
     path = Path(path)
-    if (path / "metadata.yaml").is_file():
-        raise BagError(f"{path}: has a metadata.yaml: a whole bag, nothing to repair")
+    whole = (path / "metadata.yaml").is_file()
+    if (path / "metadata.yaml").exists() and not whole:
+        require_bag(path)   # a metadata.yaml that is no file: said so
     mcaps = sorted(path.glob("*.mcap"))
     if len(mcaps) != 1:
-        raise BagError(f"{path}: {len(mcaps)} .mcap files; a recording has one")
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages: list[Message] = []
-    lost = ""
-    with mcaps[0].open("rb") as fh:
-        try:
-            for record in StreamReader(fh, validate_crcs=True).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    messages.append(record)
-        except (McapError, EOFError, ValueError, struct_error) as exc:
-            lost = f"{type(exc).__name__}: {exc}"   # the tail the writer never finished
-    if not messages:
-        raise BagError(f"{mcaps[0]}: no complete message in the stream ({lost or 'empty'})")
+        raise BagError(f"{path}: {len(mcaps)} .mcap files; a recording has one" if not whole else
+                       f"{path}: {len(mcaps)} .mcap files; rheo bag repair rebuilds a bag of one")
+    stream = _readable_records(mcaps[0])
+    if whole and not stream.spans:
+        raise BagError(f"{path}: has a metadata.yaml: a whole bag, nothing to repair (every chunk reads)")
+    if not stream.messages:
+        raise BagError(f"{mcaps[0]}: no complete message in the stream ({stream.lost or 'empty'})")
+    custom: dict[str, str] = {}
     params_file = path / RECORDING_PARAMS
-    if params is None and params_file.is_file():
+    if whole:
+        custom = _custom_data(path)
+        if params is None:
+            params = read_params(path)
+    elif params is None and params_file.is_file():
         params = parse_params(params_file.read_text(), str(params_file))
-    store = get_typestore(Stores.EMPTY)
-    for schema in schemas.values():
-        store.register(get_types_from_msg(schema.data.decode(), schema.name))
-    topics = {c.topic: schemas[c.schema_id].name for c in channels.values()}
+    if params is not None:
+        custom[PARAMS_KEY] = params_yaml(params)
+    suffix = ".damaged" if whole else ".killed"
+    kept = [(mcaps[0], path.with_name(mcaps[0].name + suffix))]
+    if whole:
+        kept.append((path / "metadata.yaml", path.with_name(f"{path.name}.metadata.yaml{suffix}")))
+    for _, there in kept:
+        if there.exists():
+            raise BagError(f"{there}: exists (an earlier repair?); move it away first: the original goes there")
+    others = sorted(p.name for p in path.iterdir() if p not in {here for here, _ in kept} | {params_file})
+    if others:   # the folder is replaced by the rebuilt bag: nothing else may be in it
+        raise BagError(f"{path}: holds {', '.join(others)} besides the bag's files; move it out first")
     rebuilt = path.with_name(path.name + ".repairing")
     if rebuilt.exists():
         raise BagError(f"{rebuilt}: exists (an earlier repair stopped?); remove it first")
-    counts = dict.fromkeys(topics, 0)
-    writer = Writer(rebuilt, version=9, storage_plugin=StoragePlugin.MCAP)
-    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    if params is not None:
-        writer.set_custom_data(PARAMS_KEY, params_yaml(params))
-    with writer:
-        conns = {cid: writer.add_connection(c.topic, topics[c.topic], typestore=store) for cid, c in channels.items()}
-        for m in sorted(messages, key=lambda m: (m.log_time, m.sequence)):
-            writer.write(conns[m.channel_id], m.log_time, m.data)
-            counts[channels[m.channel_id].topic] += 1
-    with_chunk_crcs(rebuilt / f"{rebuilt.name}.mcap")
-    # The killed file goes beside the bag (kept: nothing is thrown away), the rebuilt bag in its place.
-    mcaps[0].rename(path.with_name(mcaps[0].name + ".killed"))
+    counts = _write_rebuilt(rebuilt, stream, custom)
+    # The original files go beside the bag (kept: nothing is thrown away), the rebuilt bag in its place.
+    for here, there in kept:
+        here.rename(there)
     (rebuilt / f"{rebuilt.name}.mcap").rename(rebuilt / f"{path.name}.mcap")
     meta = (rebuilt / "metadata.yaml").read_text().replace(f"{rebuilt.name}.mcap", f"{path.name}.mcap")
     (rebuilt / "metadata.yaml").write_text(meta)
     if params_file.is_file():
         params_file.unlink()
-    path.rmdir()
+    path.rmdir()   # empty now: anything else in it stops the repair here, before any loss
     rebuilt.rename(path)
+    topic_of = {cid: c.topic for cid, c in stream.channels.items()}
+    lost: dict[str, int] = {}
+    for cid, total in stream.totals.items():
+        if cid in topic_of:
+            lost[topic_of[cid]] = lost.get(topic_of[cid], 0) + total - stream.read_per_channel.get(cid, 0)
+    return Repaired(counts, tuple(there for _, there in kept), lost if whole else {}, tuple(stream.spans))
+
+
+@dataclass
+class _Readable:
+    """What of an MCAP file reads: its schemas, channels and messages; the log-time spans
+    (s) of the chunks that do not read; why the stream ended early ("": it did not); the
+    messages per channel its summary counts (``Statistics``; empty without one)."""
+
+    schemas: dict[int, Any] = field(default_factory=dict)
+    channels: dict[int, Any] = field(default_factory=dict)
+    messages: list[Any] = field(default_factory=list)
+    spans: list[tuple[float, float]] = field(default_factory=list)
+    lost: str = ""
+    totals: dict[int, int] = field(default_factory=dict)
+    read_per_channel: dict[int, int] = field(default_factory=dict)
+
+
+def _readable_records(mcap: Path) -> _Readable:
+    """Every record of ``mcap`` that reads, chunk by chunk (mcap's StreamReader and
+    ``breakup_chunk``): a chunk that fails its CRC or does not decompress is skipped
+    whole, its span noted; a damaged structure ends the stream there."""
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Chunk, Message, Schema, Statistics
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    out = _Readable()
+    with mcap.open("rb") as fh:
+        try:
+            for record in StreamReader(fh, emit_chunks=True).records:
+                if isinstance(record, Chunk):
+                    try:
+                        inner = breakup_chunk(record, validate_crc=True)
+                    except Exception:   # a CRC mismatch, zstandard's or the parser's errors: the chunk is lost
+                        out.spans.append((record.message_start_time * 1e-9, record.message_end_time * 1e-9))
+                        continue
+                else:
+                    inner = [record]
+                for r in inner:
+                    if isinstance(r, Schema):
+                        out.schemas[r.id] = r
+                    elif isinstance(r, Channel):
+                        out.channels[r.id] = r
+                    elif isinstance(r, Message):
+                        out.messages.append(r)
+                        out.read_per_channel[r.channel_id] = out.read_per_channel.get(r.channel_id, 0) + 1
+                    elif isinstance(r, Statistics):
+                        out.totals = dict(r.channel_message_counts)
+        except (McapError, EOFError, ValueError, struct_error) as exc:
+            out.lost = f"{type(exc).__name__}: {exc}"   # the tail the writer never finished
+    return out
+
+
+def _custom_data(path: Path) -> dict[str, str]:
+    """The text entries of a bag's metadata custom_data (carried into a rebuilt bag)."""
+    info = yaml.safe_load((path / "metadata.yaml").read_text()) or {}
+    custom = (info.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
+    return {k: v for k, v in custom.items() if isinstance(k, str) and isinstance(v, str)}
+
+
+def _write_rebuilt(rebuilt: Path, stream: _Readable, custom: dict[str, str]) -> dict[str, int]:
+    """A new bag at ``rebuilt`` of ``stream``'s messages in log-time order; counts per topic."""
+    store = get_typestore(Stores.EMPTY)
+    for schema in stream.schemas.values():
+        store.register(get_types_from_msg(schema.data.decode(), schema.name))
+    topics = {c.topic: stream.schemas[c.schema_id].name for c in stream.channels.values()}
+    counts = dict.fromkeys(topics, 0)
+    writer = Writer(rebuilt, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    for key, value in custom.items():
+        writer.set_custom_data(key, value)
+    with writer:
+        conns = {cid: writer.add_connection(c.topic, topics[c.topic], typestore=store)
+                 for cid, c in stream.channels.items()}
+        for m in sorted(stream.messages, key=lambda m: (m.log_time, m.sequence)):
+            writer.write(conns[m.channel_id], m.log_time, m.data)
+            counts[stream.channels[m.channel_id].topic] += 1
+    with_chunk_crcs(rebuilt / f"{rebuilt.name}.mcap")
     return counts
 
 

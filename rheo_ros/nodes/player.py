@@ -15,7 +15,7 @@ import signal
 import tempfile
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -98,20 +98,35 @@ def _acked(publisher: Any, seconds: float, stop: threading.Event) -> bool:
     return True
 
 
-def message_class(path: Path, topic: str, msgtype: str) -> type:
-    """The installed rclpy class of ``msgtype`` (a bag may hold types this machine lacks).
-
-    Raises:
-        BagError: names the bag, the topic and the type."""
+def message_class(msgtype: str) -> type | None:
+    """The installed rclpy class of ``msgtype``; None where this machine lacks it (a bag
+    may hold types of packages not installed here)."""
     try:
         return MessageTypes.rclpy().lookup(msgtype)
     except (ImportError, AttributeError, ValueError):
-        raise BagError(f"{path}: {topic}: type {msgtype} is not installed here; give --topics without it") from None
+        return None
+
+
+def playable_classes(path: Path, types: dict[str, str], warn: Callable[[str], None]) -> dict[str, type]:
+    """The rclpy class of each topic of ``types`` (topic -> type name) whose type is
+    installed; each other topic skipped with one ``warn`` line naming it and its type.
+
+    Raises:
+        BagError: no topic left to play (names the topics skipped and their types)."""
+    classes = {topic: message_class(msgtype) for topic, msgtype in types.items()}
+    skipped = [f"{topic}: type {types[topic]}" for topic, cls in classes.items() if cls is None]
+    if skipped and len(skipped) == len(types):
+        raise BagError(f"{path}: {', '.join(skipped)} is not installed here; nothing else to play")
+    for line in skipped:
+        warn(f"{path}: {line} is not installed here: not played")
+    return {topic: cls for topic, cls in classes.items() if cls is not None}
 
 
 def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 1,
-         topics: Sequence[str] | None = None, wait_for: int = 0, discovery_timeout: float = 10.0) -> dict[str, int]:
-    """Publish a bag; returns the count per topic. Ctrl-C or SIGTERM stops it.
+         topics: Sequence[str] | None = None, wait_for: int = 0, discovery_timeout: float = 10.0,
+         warn: Callable[[str], None] = lambda line: None) -> dict[str, int]:
+    """Publish a bag; returns the count per topic. Ctrl-C or SIGTERM stops it. A topic
+    whose type is not installed here is skipped, said in a ``warn`` line.
 
     Args:
         rate: speed factor on the recorded timing (ignored with ``clock``).
@@ -120,8 +135,8 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         wait_for: start once every topic has this many subscribers.
 
     Raises:
-        BagError: unreadable bag, unknown topic. GraphError: subscribers missing after
-            ``discovery_timeout`` s.
+        BagError: unreadable bag, unknown topic, no topic of an installed type.
+            GraphError: subscribers missing after ``discovery_timeout`` s.
     """
     path = require_bag(path)
     if not rate > 0:
@@ -130,7 +145,12 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         raise ValueError(f"--loop: {loops} must be a whole number of passes, at least 1")
     with bag_reader(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections if topics is None or c.topic in topics}
-    classes = {topic: message_class(path, topic, msgtype) for topic, msgtype in types.items()}   # before DDS starts
+    if topics is not None:
+        missing = sorted(set(topics) - set(types))
+        if missing:
+            raise BagError(f"{path}: {', '.join(missing)}: not in the bag")
+    classes = playable_classes(path, types, warn)   # before DDS starts
+    types = {topic: types[topic] for topic in classes}
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     profile = Path(tempfile.mkdtemp(prefix="rheo-play-")) / "fastdds_writer.xml"
@@ -153,7 +173,7 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
         counts, sent = dict.fromkeys(types, 0), 0
         start_wall, start_bag, last_clock = time.monotonic(), None, -1
         tick = Clock()
-        for topic, _, t, raw in _bag_messages(path, topics, loops):
+        for topic, _, t, raw in _bag_messages(path, list(types), loops):
             if stop.is_set():
                 break
             if start_bag is None:

@@ -37,6 +37,7 @@ from rheo_ros.config.setup import Setup
 from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.diagnosis.decision import Verdict, at_bound
 from rheo_ros.diagnosis.discover import discover
+from rheo_ros.diagnosis.evidence import judged_keep, keep_too_short
 from rheo_ros.diagnosis.fits import ModelFit, assess
 from rheo_ros.experiment import PUSH_PHASES, StageProfile, check_object_hint
 from rheo_ros.fe.mesh import Mesh
@@ -360,6 +361,12 @@ class PhaseIdentifier:
         # One process: the node's fit lane is a worker already.
         models, verdicts = discover(rec, self.forward, base, noise=noise, workers=1)
         verdict = Verdict.of(verdicts)
+        try:   # the closed form rheo analyze judges the keep by (milliseconds; not kept from the other lane)
+            short = keep_too_short(closed_form("release", rec, self.forward).estimate, rec.profile(),
+                                   self.config.rate_std)
+        except RecordError:
+            short = ""
+        verdict = replace(verdict, evidence=judged_keep(verdict.evidence, bool(verdict.adequate), short))
         if job.cut_short:
             verdict = replace(verdict, evidence=f"{job.warning()}. {verdict.evidence}")
         return OnlineDiagnosis.of(job.event.experiment, float(rec.force_t[-1]), models, verdict,
