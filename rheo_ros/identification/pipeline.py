@@ -49,11 +49,17 @@ PROFILE_STEPS = 8
 @dataclass(frozen=True)
 class ClosedForm:
     """A phase's closed form: the solution reported, the solutions the fit starts from,
-    and the closed forms that had none (each with its reason)."""
+    the closed forms that had none (each with its reason), and how many of the phase's
+    closed forms (``CLOSED_FORMS``) were tried (``closed_form`` goes on from there)."""
 
     estimate: Estimate
     starts: tuple[dict[str, float], ...]
     failed: tuple[str, ...] = ()
+    tried: int = 0
+
+
+# The closed forms' solutions a fit starts from (the first is reported).
+STARTS = 2
 
 
 def require_readings(record: Record, stream: str = "tactile") -> None:
@@ -67,33 +73,43 @@ def require_readings(record: Record, stream: str = "tactile") -> None:
         raise RecordError(f"{record.source}: {stream}: {record.sensor.unreadable}")
 
 
-def closed_form(phase: str, record: Record, forward: QuasiStaticFE) -> ClosedForm:
+def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: int = STARTS,
+                after: ClosedForm | None = None) -> ClosedForm:
     """The paper's solution for the data of a push up to the end of ``phase``
-    (``CLOSED_FORMS``), with a note in its message naming the better ones that failed.
+    (``CLOSED_FORMS``), with a note in its message naming the better ones that failed;
+    up to ``solutions`` solutions as the fit's starts. ``after``: the same phase's closed
+    form with fewer, gone on with (the node publishes the first solution before it
+    computes the second: the same starts as in one call).
 
     Raises:
         RecordError: readings that carry no force (``require_readings``), or no closed
             form has a solution (each reason named).
     """
     require_readings(record)
-    solutions: list[Estimate] = []
-    failed: list[str] = []
+    failed: list[str] = [] if after is None else list(after.failed)
+    starts = [] if after is None else list(after.starts)
+    reported = None if after is None else after.estimate
+    tried = 0 if after is None else after.tried
     record = as_fresh_push(record)
     nodes = unsaturated_nodes(record)
-    for label, identify in CLOSED_FORMS[phase]:
+    forms = CLOSED_FORMS[phase]
+    while tried < len(forms) and len(starts) < solutions:
+        label, identify = forms[tried]
+        tried += 1
         try:
-            solutions.append(identify(record, forward=forward, nodes=nodes))
+            solution = identify(record, forward=forward, nodes=nodes)
         except RecordError as exc:
             failed.append(f"{label}: {exc}")
-        if len(solutions) == 2:
-            break
-    if not solutions:
+            continue
+        if reported is None:
+            reported = solution
+            if failed:
+                note = f"{solution.method} reported in place of: {'; '.join(failed)}"
+                reported = replace(solution, message=f"{note}; {solution.message}" if solution.message else note)
+        starts.append(solution.params)
+    if reported is None:
         raise RecordError(f"{record.source}: no closed form has a solution ({'; '.join(failed)})")
-    reported = solutions[0]
-    if failed:
-        note = f"{reported.method} reported in place of: {'; '.join(failed)}"
-        reported = replace(reported, message=f"{note}; {reported.message}" if reported.message else note)
-    return ClosedForm(reported, tuple(s.params for s in solutions), tuple(failed))
+    return ClosedForm(reported, tuple(starts), tuple(failed), tried)
 
 
 def unsaturated_nodes(record: Record) -> np.ndarray | None:

@@ -298,20 +298,25 @@ class PhaseIdentifier:
         return job.record
 
     def closed_form(self, job: Job) -> tuple[Update, ClosedForm]:
-        """The phase's closed form (``pipeline.closed_form``) as an update, with the starts
-        of its fit.
+        """The phase's closed form (``pipeline.closed_form``) as an update: its first
+        solution, the latency the node answers in; ``fit_starts`` adds the others.
 
         Raises:
             RecordError: too few samples, or no closed form has a solution.
         """
         rec = self._record(job)
-        closed = closed_form(job.event.name, rec, self.forward)
+        closed = closed_form(job.event.name, rec, self.forward, solutions=1)
         # The table's shape: each update brings a new gamma, and an exact shape costs a
         # factorisation (~18 ms) in the closed form's latency; the RMS moves < 1e-5.
         p = closed.estimate.params
         predicted = self.forward.predict(Model(three_element(p["E"], p["c1"], p["c2"])), p["gamma"],
                                          rec.profile(), rec.force_t, rec.marker_t[:1], tabulated=True)
         return self._update(job, closed.estimate, force_error(rec, predicted.force)[0]), closed
+
+    def fit_starts(self, job: Job, closed: ClosedForm) -> ClosedForm:
+        """``closed`` (from ``closed_form``) with every solution the fit starts from, as
+        ``rheo analyze``'s closed form has them."""
+        return closed_form(job.event.name, self._record(job), self.forward, after=closed)
 
     def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None,
             earlier: Estimate | None = None) -> tuple[Update, Estimate]:
@@ -671,7 +676,7 @@ class OnlineEstimator:
         else:
             yield update
         if self.config.fit:
-            yield self.fit(job, closed)
+            yield self.fit(job, None if closed is None else self.identify.fit_starts(job, closed))
 
     def fit(self, job: Job, closed: ClosedForm | None,
             run: Callable[[Job, ClosedForm | None, Estimate | None, Estimate | None], tuple[Update, Estimate]]
