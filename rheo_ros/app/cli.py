@@ -364,6 +364,15 @@ def build_parser() -> argparse.ArgumentParser:
                              "the tactile rate",
                   lengths=(str, "170,600", "record lengths in s, comma-separated (the issue's: 170,600,3000)"),
                   rates=(str, "50", "tactile rates in Hz, comma-separated (50,500)"), seed=(int, 1, "noise seed"))
+    bench_command("peers", "the whole-record fit against scipy least_squares and lmfit over solve_ivp, and the second "
+                           "relaxation against pyvisco (the peers installed by the bench, pinned, into "
+                           "~/.cache/rheo_ros/peers)",
+                  lengths=(str, "170,600", "record lengths in s, comma-separated (with the default rates also 170 s "
+                                           "at 500 Hz; the issue's: 170,600,3000, longer)"),
+                  rates=(str, "50", "tactile rates in Hz, comma-separated (50,500)"), seed=(int, 1, "noise seed"),
+                  no_relaxation=(bool, False, "leave out the second-relaxation record (pyvisco)"),
+                  no_install=(bool, False, "install nothing: the peers already in the cache folder only"),
+                  out=(str, None, "also write the table into this file"))
     s = sub.add_parser("simulate", help="simulate a run and write it as a rosbag2 MCAP bag (no DDS)")
     s.add_argument("--effect", action="append", metavar="ID",
                    help="hidden effect to add (repeatable): relaxation_branch, adhesion, strain_stiffening, "
