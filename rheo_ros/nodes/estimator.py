@@ -275,12 +275,6 @@ class EstimatorNode(Node):
                                                  self.workers["closed_form"].last_compute))
                 self.last_error = ""
             if "fit" in self.workers:
-                if closed is not None:   # the fit's other starts, once the estimate is out
-                    try:
-                        closed = self._in_worker("closed_form", "fit_starts", job, closed)
-                    except RecordError as exc:
-                        self._failed(job, exc)
-                        continue
                 self.fit_jobs.put((job, closed, arrival))
             elif closed is None:
                 self._failed(job, failure)

@@ -299,7 +299,7 @@ class PhaseIdentifier:
 
     def closed_form(self, job: Job) -> tuple[Update, ClosedForm]:
         """The phase's closed form (``pipeline.closed_form``) as an update: its first
-        solution, the latency the node answers in; ``fit_starts`` adds the others.
+        solution, the latency the node answers in (``fit`` adds the other starts).
 
         Raises:
             RecordError: too few samples, or no closed form has a solution.
@@ -312,11 +312,6 @@ class PhaseIdentifier:
         predicted = self.forward.predict(Model(three_element(p["E"], p["c1"], p["c2"])), p["gamma"],
                                          rec.profile(), rec.force_t, rec.marker_t[:1], tabulated=True)
         return self._update(job, closed.estimate, force_error(rec, predicted.force)[0]), closed
-
-    def fit_starts(self, job: Job, closed: ClosedForm) -> ClosedForm:
-        """``closed`` (from ``closed_form``) with every solution the fit starts from, as
-        ``rheo analyze``'s closed form has them."""
-        return closed_form(job.event.name, self._record(job), self.forward, after=closed)
 
     def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None,
             earlier: Estimate | None = None) -> tuple[Update, Estimate]:
@@ -333,6 +328,9 @@ class PhaseIdentifier:
             # Superseded within release_interval s: one start, not the final's screening.
             starts, note = [interim_start(rec, closed, self.config)], ""
         elif closed is not None:
+            # The closed forms' other solutions, computed here off the closed form's latency:
+            # the same starts as rheo analyze's one call.
+            closed = closed_form(job.event.name, rec, self.forward, after=closed)
             starts, note = fit_starts(rec, closed, self.config, earlier), ""
         elif previous is not None:
             starts, note = [previous.params], "no closed form; fit started from the previous update"
@@ -676,7 +674,7 @@ class OnlineEstimator:
         else:
             yield update
         if self.config.fit:
-            yield self.fit(job, None if closed is None else self.identify.fit_starts(job, closed))
+            yield self.fit(job, closed)
 
     def fit(self, job: Job, closed: ClosedForm | None,
             run: Callable[[Job, ClosedForm | None, Estimate | None, Estimate | None], tuple[Update, Estimate]]
