@@ -838,3 +838,15 @@ def test_any_value_of_a_listed_effects_parameter_is_refused_naming_it_or_makes_a
         assert str(exc).startswith("p.yaml: ") and f"effects.{effect}" in str(exc), (name, value, str(exc))
         return
     assert Setup(params).model().effects
+
+
+def test_a_hole_is_said_on_the_pushes_whose_data_it_touches():
+    """A hole in a topic's stamps is a warning on each push whose samples it falls among
+    (a bag of several pushes: not on the others); a whole-bag note on every push."""
+    from rheo_ros.app.analyze import SampleNote, stamp_gaps
+
+    [hole] = stamp_gaps(np.r_[np.arange(0.0, 10.0, 0.02), np.arange(15.0, 30.0, 0.02)])
+    assert hole.span == pytest.approx((9.98, 15.0)) and "no message for 5.02 s" in hole.text
+    assert hole.touches(0.0, 12.0) and hole.touches(14.0, 40.0) and not hole.touches(15.5, 40.0)
+    assert not hole.touches(0.0, 9.9) and SampleNote("whole bag").touches(100.0, 200.0)
+    assert stamp_gaps(np.arange(0.0, 10.0, 0.02)) == []   # sampled throughout: none

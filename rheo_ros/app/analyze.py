@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +73,20 @@ GAP_INTERVALS = 20
 GAP_MIN = 1.0
 
 
-def checked_samples(bag: str | Path, setup: Setup, warnings: list[str] | None = None
+@dataclass(frozen=True)
+class SampleNote:
+    """A warning on a bag's samples: ``span`` (s) where it happened (a hole), None for the
+    whole bag (samples dropped out of order)."""
+
+    text: str
+    span: tuple[float, float] | None = None
+
+    def touches(self, t0: float, t1: float) -> bool:
+        """Whether it concerns a push whose data run from ``t0`` to ``t1`` (s)."""
+        return self.span is None or (self.span[0] < t1 and self.span[1] > t0)
+
+
+def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None
                     ) -> Iterator[tuple[str, float, Any]]:
     """The bag's measurement samples (``bag_samples``), each through the estimator node's
     checks (``io.checks.SampleCheck``: shapes, clock jumps, units, NaN), and at the end a
@@ -108,23 +121,25 @@ def checked_samples(bag: str | Path, setup: Setup, warnings: list[str] | None = 
                            f"after the one before (the latest {latest[stream]:.3f} s): the stamps do not advance "
                            "(duplicated messages, or a header stamp not filled in?)")
     if warnings is not None:
-        warnings += [f"{TOPIC_OF[stream]}: {gap}" for stream, t in stamps.items() for gap in stamp_gaps(t)]
+        warnings += [SampleNote(f"{TOPIC_OF[stream]}: {gap.text}", gap.span)
+                     for stream, t in stamps.items() for gap in stamp_gaps(t)]
 
 
-def stamp_gaps(stamps: Sequence[float]) -> list[str]:
+def stamp_gaps(stamps: Sequence[float]) -> list[SampleNote]:
     """Each hole in a topic's header stamps (longer than ``GAP_INTERVALS`` of its median
-    interval and ``GAP_MIN`` s) in words."""
+    interval and ``GAP_MIN`` s), in words and with its span."""
     t = np.sort(np.asarray(stamps, float))
     steps = np.diff(t)
     if steps.size < 2:
         return []
     limit = max(GAP_MIN, GAP_INTERVALS * float(np.median(steps)))
-    return [f"no message for {steps[k]:.3g} s ({t[k]:.3f}-{t[k + 1]:.3f} s, a lost chunk or a sensor that "
-            f"stopped): the analysis fits the samples around the gap; what shows only inside it goes unseen"
+    return [SampleNote(f"no message for {steps[k]:.3g} s ({t[k]:.3f}-{t[k + 1]:.3f} s, a lost chunk or a sensor "
+                       "that stopped): the analysis fits the samples around the gap; what shows only inside it "
+                       "goes unseen", (float(t[k]), float(t[k + 1])))
             for k in np.flatnonzero(steps > limit)]
 
 
-def release_jobs(bag: str | Path, setup: Setup, warnings: list[str] | None = None) -> list[Job]:
+def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None) -> list[Job]:
     """Each push's release job, as the estimator node makes it from the bag (a release
     still open at the end of the bag closed there, and said so). ``warnings``: what the
     bag's samples lacked is appended to it (a hole in a topic; samples out of stamp order,
@@ -151,9 +166,10 @@ def release_jobs(bag: str | Path, setup: Setup, warnings: list[str] | None = Non
     stream.finish()
     jobs += stream.ready_jobs(silent=stream.streams)
     if warnings is not None:
-        warnings += [f"{CORE_TOPIC[s]}: {n} message(s) stamped not after the one before (out of header-stamp order) "
-                     "dropped, as the estimator node drops them (its /diagnostics 'out of order'): the analysis went "
-                     "without them" for s, n in stream.rejected.items() if n]
+        warnings += [SampleNote(f"{CORE_TOPIC[s]}: {n} message(s) stamped not after the one before (out of "
+                                "header-stamp order) dropped, as the estimator node drops them (its /diagnostics "
+                                "'out of order'): the analysis went without them")
+                     for s, n in stream.rejected.items() if n]
     releases = [j for j in jobs if j.event.name == "release"]
     min_depth = setup.segmenter_config().min_depth
     if not releases and 0.0 < deepest < min_depth:
@@ -201,7 +217,7 @@ def analyze(
     params = bag_params(bag, params_file)
     setup = Setup(params)
     say(f"reading {bag}")
-    said: list[str] = []   # what the bag's samples lacked: every push's report carries it
+    said: list[SampleNote] = []   # what the bag's samples lacked: each push's report, where it touches it
     releases = release_jobs(bag, setup, said)
     pushes = []
     for number, job in enumerate(releases, 1):
@@ -218,7 +234,7 @@ def analyze(
 
 def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects: Sequence[str],
                   discover_effects: bool, candidates: Sequence[str] | None, say: Progress,
-                  workers: int | None, earlier: Estimate | None = None, said: Sequence[str] = ()) -> Analysis:
+                  workers: int | None, earlier: Estimate | None = None, said: Sequence[SampleNote] = ()) -> Analysis:
     """One push's analysis: the release job's record (its profile carries the pushes
     before it on the same specimen), closed form, fit (``earlier``: the push before's, a
     start where the closed form leaves a parameter open), the user's effects, discovery; ``said``: what
@@ -229,7 +245,9 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     require_readings(record, TACTILE_TOPIC)   # before any work, naming the topic
     forward = setup.forward_model()
     noise = sensor_noise(record)
-    warnings = [*said, *(w for w in (job.warning(),) if w), *(record.sensor.warnings if record.sensor else ())]
+    t0, t1 = float(record.stage_t[0]), float(record.stage_t[-1])
+    warnings = [*(n.text for n in said if n.touches(t0, t1)), *(w for w in (job.warning(),) if w),
+                *(record.sensor.warnings if record.sensor else ())]
     if job.object:
         warnings.append(f"experiment {number}: the goal said {job.object!r} object (/rheo/object): "
                         + ("modelled from rest, a new pool" if job.object == "new" else
