@@ -10,7 +10,6 @@ final estimate.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -38,7 +37,7 @@ from rheo_ros.identification.pipeline import (
 from rheo_ros.io.bag import bag_samples, read_params, release_cuts, require_bag
 from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
-from rheo_ros.io.files import write_text_atomic
+from rheo_ros.io.files import write_json_atomic
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
 from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
@@ -154,8 +153,10 @@ def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | Non
            "object": stream.add_object}
     jobs: list[Job] = []
     deepest = 0.0
-    cuts = release_cuts(bag)   # releases the node closed on silence: closed here at the same samples
+    cuts = None   # releases the node closed on silence: closed here at the same samples
     for name, t, data in checked_samples(bag, setup, warnings):
+        if cuts is None:   # the samples' reader has checked every chunk by its first sample
+            cuts = release_cuts(bag, chunks_checked=True)
         while cuts and t > cuts[0][0]:
             stream.replay_cut(*cuts.pop(0))
             jobs += stream.ready_jobs(silent=stream.streams)
@@ -298,10 +299,12 @@ def estimate_bag(path: str | Path, params: dict | None = None, diagnoses: list[O
     return estimate_stream(estimator, bag_samples(path), diagnoses, pools)
 
 
-def write_outputs(result: Analysis, json_path: str | Path | None, report_dir: str | Path | None) -> Path | None:
-    """An analysis's JSON (written atomically) and HTML report, where asked; the report's path."""
+def write_outputs(result: Analysis, json_path: str | Path | None, report_dir: str | Path | None,
+                  data: dict[str, Any] | None = None) -> Path | None:
+    """An analysis's JSON (``data``: its ``to_json()`` where the caller has it; written
+    atomically) and HTML report, where asked; the report's path."""
     if json_path:
-        write_text_atomic(json_path, json.dumps(result.to_json(), indent=2, default=float) + "\n")
+        write_json_atomic(json_path, result.to_json() if data is None else data)
     if not report_dir:
         return None
     from rheo_ros.reports.html import write_report

@@ -97,8 +97,9 @@ def analyze_bag(job: BagJob) -> list[dict[str, Any]]:
     try:
         result = analyze(job.bag, effects=job.effects, params_file=job.params_file,
                          discover_effects=job.discover, workers=1)
-        write_outputs(result, job.json, job.report)
-        return table_rows(job.bag, result.to_json())
+        report = result.to_json()
+        write_outputs(result, job.json, job.report, report)
+        return table_rows(job.bag, report)
     except BAD_INPUT as exc:
         return [error_row(job.bag, error_line(exc))]
     except Exception as exc:   # a bug must not end the batch: the row says what failed, and where

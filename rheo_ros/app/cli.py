@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import os
 import sys
 from collections.abc import Sequence
@@ -13,7 +12,7 @@ from typing import Any
 
 from rheo_ros.config.setup import ParamsError
 from rheo_ros.io.errors import BagError
-from rheo_ros.io.files import write_text_atomic
+from rheo_ros.io.files import write_json_atomic
 from rheo_ros.nodes.errors import GraphError
 from rheo_ros.record import RecordError
 
@@ -58,7 +57,7 @@ def error_line(exc: BaseException) -> str:
 
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
-        write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
+        write_json_atomic(path, data)
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -205,7 +204,7 @@ def _analyze(args: argparse.Namespace) -> int:
     report = result.to_json()
     for warning in report["warnings"]:
         print(f"rheo analyze: warning: {warning}", file=sys.stderr)
-    path = write_outputs(result, args.json, args.report)
+    path = write_outputs(result, args.json, args.report, report)
     print(format_analysis(report))
     if path:
         print(f"report: {path}")

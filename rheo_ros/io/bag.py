@@ -408,10 +408,12 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
 
 
 @contextmanager
-def bag_reader(path: Path) -> Iterator[AnyReader]:
-    """rosbags' reader on a bag directory; what a damaged bag raises inside (rosbags
-    raises several types: bad metadata bytes, truncated chunks) as a BagError naming it."""
-    for mcap in sorted(path.glob("*.mcap")):
+def bag_reader(path: Path, chunks_checked: bool = False) -> Iterator[AnyReader]:
+    """rosbags' reader on a bag directory, its chunks checked first (``check_chunks``)
+    unless ``chunks_checked`` (this pass's caller read the bag through a checked reader
+    already); what a damaged bag raises inside (rosbags raises several types: bad metadata
+    bytes, truncated chunks) as a BagError naming it."""
+    for mcap in sorted(path.glob("*.mcap")) if not chunks_checked else ():
         check_chunks(mcap)
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
@@ -444,8 +446,8 @@ def mcap_damage(mcap: Path) -> str | None:
     return None
 
 
-def _messages(path: Path, topics: Iterable[str]) -> Iterator[tuple[str, Any]]:
-    with bag_reader(path) as reader:
+def _messages(path: Path, topics: Iterable[str], chunks_checked: bool = False) -> Iterator[tuple[str, Any]]:
+    with bag_reader(path, chunks_checked) as reader:
         conns = [c for c in reader.connections if c.topic in topics]
         expected = {**TOPIC_TYPES, OBJECT_TOPIC: OBJECT_TYPE, PHASE_TOPIC: PHASE_TYPE}
         for c in conns:
@@ -526,19 +528,19 @@ def bag_samples(path: str | Path) -> Iterator[tuple[str, float, Any]]:
             raise BagError(f"{path}: {topic}: {exc}") from None
 
 
-def release_cuts(path: str | Path) -> list[tuple[float, str]]:
+def release_cuts(path: str | Path, chunks_checked: bool = False) -> list[tuple[float, float, str]]:
     """The releases a node closed before they settled, as the recording's ``/rheo/phase``
     says (``read_release_cut``: the latest sample the node had, the release's end, s,
-    and why), in time order; none where the bag
-    did not record that topic. ``rheo analyze`` closes those releases there too: a node
+    and why), in time order; none where the bag did not record that topic. ``rheo analyze`` closes those releases there too: a node
     that heard nothing for ``estimator.stale_after`` s of its wall clock fitted what it
     had, while a recording may go on at later stamps (a simulator that stalled).
+    ``chunks_checked``: as ``bag_reader``'s.
 
     Raises:
         BagError: unreadable bag or a /rheo/phase message that does not decode.
     """
     cuts = []
-    for _, msg in _messages(Path(path), (PHASE_TOPIC,)):
+    for _, msg in _messages(Path(path), (PHASE_TOPIC,), chunks_checked):
         try:
             cut = read_release_cut(msg)
         except AttributeError as exc:

@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
+
+
+def write_json_atomic(path: str | Path, data: Any) -> Path:
+    """``data`` as indented JSON (numpy floats as floats), ``write_text_atomic``."""
+    return write_text_atomic(path, json.dumps(data, indent=2, default=float) + "\n")
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
