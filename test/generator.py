@@ -170,6 +170,10 @@ class Effects:
         tau from rest (the elastomer over the cells creeps), before its noise.
     camera_drift: (vx m/s, vy m/s): in no catalogue and in the markers alone: the camera's
         mount creeps, every marker seen moving by (vx, vy) t from t = 0.
+    damage: d: a material law in no catalogue (continuum damage, Mullins-like): the block's
+        structure breaks down with the largest strain it has seen, its stress
+        sigma / (1 + d eps_max); the kinematics are the undamaged block's (a stress-free
+        recovery is one whatever the factor), so the markers do not see it.
     """
     stiffening: float | None = None
     maxwell: tuple[tuple[float, float], ...] = ()
@@ -178,6 +182,7 @@ class Effects:
     column_drift: tuple[float, float] | None = None
     sensor_lag: tuple[float, float] | None = None
     camera_drift: tuple[float, float] | None = None
+    damage: float | None = None
 
 
 EFFECTS: dict[str, Effects] = {
@@ -425,7 +430,10 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
 
     # Tactile: every cell reads the uniform bottom stress (the block is homogeneous).
     mech = simulate(material, effects, profile, tac_t, layout.height, fresh_material)
-    p = np.broadcast_to(mech.sigma[:, None, None], shape).copy()
+    sigma = mech.sigma
+    if effects.damage is not None:   # eps_max over the samples: the strain peaks on a stage knot
+        sigma = sigma / (1.0 + effects.damage * np.maximum.accumulate(mech.eps))
+    p = np.broadcast_to(sigma[:, None, None], shape).copy()
     if effects.adhesion is not None:
         p0, tau = effects.adhesion
         touched = [push for push in mech.pushes if push.contact is not None]
@@ -617,19 +625,23 @@ def bench_effect(rng: np.random.Generator, family: str, material: Material, prof
 
 
 # Effects in no catalogue (rheo bench diagnosis --outside): what the package must not name.
-BENCH_OUTSIDE = ("sensor_lag", "camera_drift")
+BENCH_OUTSIDE = ("sensor_lag", "camera_drift", "damage")
 
 
 def bench_outside(rng: np.random.Generator, name: str) -> tuple[dict[str, Any], dict[str, float], str]:
     """One effect in no catalogue by this generator's law: its ``Effects`` fields, its
     values and the signal it shows in. sensor_lag: a share 2..50 % of each reading through
-    a lag of 0.3..10 s; camera_drift: the camera seen moving at 0.1..5 um/s each way."""
+    a lag of 0.3..10 s; camera_drift: the camera seen moving at 0.1..5 um/s each way;
+    damage: a softening d of 0.3..5 (the stress over 1 + d eps_max)."""
     if name == "sensor_lag":
         tau, share = _log_uniform(rng, 0.3, 10.0), _log_uniform(rng, 0.02, 0.5)
         return {"sensor_lag": (tau, share)}, {"tau": tau, "share": share}, "force"
     if name == "camera_drift":
         v = tuple(float(rng.choice((-1.0, 1.0))) * _log_uniform(rng, 1e-7, 5e-6) for _ in range(2))
         return {"camera_drift": v}, {"vx": v[0], "vy": v[1]}, "markers"
+    if name == "damage":
+        d = _log_uniform(rng, 0.3, 5.0)
+        return {"damage": d}, {"softening": d}, "force"
     raise KeyError(name)
 
 
