@@ -13,6 +13,8 @@ import pytest
 import yaml
 
 from rheo_ros.config.setup import Setup, parse_params
+from rheo_ros.identification.pipeline import require_readings
+from rheo_ros.record import RecordError
 from rheo_ros.sensors import LINEAR, TactileArray, TactileReadout, read_sensor
 
 CONTRACT_ONLY = yaml.safe_dump(g.params_document(g.Layout()))
@@ -141,3 +143,20 @@ def test_a_record_saturated_most_of_the_time_still_shows_its_noise():
     noise = sensor_noise(rec).force_std
     expected = CELL_NOISE * np.sqrt(array.cells_per_segment) * array.cell_area
     np.testing.assert_allclose(noise, expected, rtol=0.35)
+    require_readings(rec)   # some readings clear of saturation: identified, not refused
+
+
+def test_a_push_read_only_at_saturation_is_refused_in_one_line():
+    """A stiffer specimen on the clipped sensor: the first instant of the pull already
+    presses every cell past 4000 Pa (c1 x the strain rate 4.7 kPa) and the keep never
+    relaxes under it; every reading of the pull and the keep is at saturation. Refused,
+    naming the stream and each segment's saturation (before, the closed forms failed on
+    "the wrong sign for a push" and a fit from elsewhere called the flat line E +- 0.4 %)."""
+    data = g.synthesize(material=g.Material(E=87711.0, c1=7.585e5, c2=2.575e8, gamma=0.22), sensor="clipped",
+                        seed=3, profile=g.Profile(depth=0.00925, keep_time=16.0, release_time=23.0))
+    rec = Setup(parse_params(CONTRACT_ONLY, "<test>")).record(data.stage_t, data.depth, data.tactile_t,
+                                                               data.images, data.marker_t, data.markers)
+    with pytest.raises(RecordError, match=r"^<memory>: /tactile/pressure: through the pull and the keep every segment "
+                                          r"reads at its saturation \(0\.5, 1, 1, 1, 0\.5 N, P1, P2, \.\.\.\) or under "
+                                          r"its dead band: the array did not measure the push's force"):
+        require_readings(rec, "/tactile/pressure")

@@ -22,15 +22,18 @@ from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
 from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
-from rheo_ros.identification.estimate import Estimate
+from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.pipeline import (
+    SEARCHED,
+    NoClosedForm,
     closed_form,
     contact_depth,
     fit_from_starts,
     fit_starts,
     relaxation_unseen,
     require_readings,
+    searched_starts,
     undetermined,
     without_undetermined,
 )
@@ -258,15 +261,23 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
                         "at rest: another object, or one that recovered fully; modelled from rest, not from the "
                         "pushes before")
     say("closed form (eq. 6, 7, 10 / 14-17)")
-    closed = closed_form("release", record, forward)
-    if closed.failed:
-        warnings.append(f"closed form: {closed.estimate.method} reported in place of: {'; '.join(closed.failed)}")
-    open_ = undetermined(record, closed.estimate, setup.estimator_config())   # as the node reports it
-    warnings += [f"closed form: {name} not determined: {why}" for name, why in open_.items()]
+    try:
+        closed = closed_form("release", record, forward)
+    except NoClosedForm as exc:   # as the node: the fit starts from a search
+        reported = Estimate({k: np.nan for k in BASE_PARAMETERS}, "none", (), message=str(exc))
+        open_ = {k: "no closed form has a solution" for k in BASE_PARAMETERS}
+        warnings.append(f"closed form: {exc}; {SEARCHED}")
+        starts = searched_starts(record, forward, earlier)
+    else:
+        if closed.failed:
+            warnings.append(f"closed form: {closed.estimate.method} reported in place of: {'; '.join(closed.failed)}")
+        open_ = undetermined(record, closed.estimate, setup.estimator_config())   # as the node reports it
+        warnings += [f"closed form: {name} not determined: {why}" for name, why in open_.items()]
+        reported = without_undetermined(closed.estimate, open_)
+        starts = fit_starts(record, closed, setup.estimator_config(), earlier)
     for warning in warnings:
         say(f"warning: {warning}")
     say("fitting three_element over the whole record")
-    starts = fit_starts(record, closed, setup.estimator_config(), earlier)
     fit = fit_from_starts(record, forward, starts, noise=noise)
     _, fit = relaxation_unseen(record, fit, forward, starts)   # as the node: a flat c2 valley widens the rest
     noise = noise.floored(fit.statistics.floor)   # the model's own resolution: never judged against zero
@@ -281,7 +292,7 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     if discover_effects:
         found, diagnoses = discover(record, forward, models[-1], candidates, noise, progress=say, workers=workers)
         models += found[1:]
-    return Analysis(str(bag), record, setup, forward, noise, without_undetermined(closed.estimate, open_),
+    return Analysis(str(bag), record, setup, forward, noise, reported,
                     tuple(models), tuple(diagnoses), tuple(effects), tuple(warnings), object=job.object,
                     undetermined=open_)
 

@@ -17,7 +17,13 @@ import numpy as np
 from rheo_ros.config.tuning import EstimatorConfig
 from rheo_ros.experiment import PUSH_PHASES, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.closed_form import from_final_displacement, from_pull, from_pull_and_keep
+from rheo_ros.identification.closed_form import (
+    displacement_at_depth,
+    from_final_displacement,
+    from_pull,
+    from_pull_and_keep,
+    lateral_strain_ratio,
+)
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.fit import away_from_boundaries, fit_record
 from rheo_ros.identification.noise import SensorNoise, Weights, force_noise, sensor_noise
@@ -63,14 +69,29 @@ STARTS = 2
 
 
 def require_readings(record: Record, stream: str = "tactile") -> None:
-    """Refuse a record whose tactile readings carry no force (``SensorReading.unreadable``):
-    every number identified from them would be wrong. ``stream`` names them in the message.
+    """Refuse a record whose tactile readings carry no force (``SensorReading.unreadable``,
+    or a push read only at saturation): every number identified from them would be wrong. ``stream`` names them in the message.
 
     Raises:
         RecordError: names the record's source, the stream and what is wrong.
     """
     if record.sensor is not None and record.sensor.unreadable:
         raise RecordError(f"{record.source}: {stream}: {record.sensor.unreadable}")
+    band = record.dead_band
+    if band is None or not np.any(np.isfinite(band.saturation)):
+        return
+    # A push read only at the array's saturation (and under its dead band) carries no
+    # force: the closed forms read a flat line, the fit only bounds.
+    profile = record.profile()
+    pressing = (record.force_t >= profile.t_pull_start) & (record.force_t <= profile.t_keep_end)
+    std = np.nan_to_num(force_noise(record)[0])
+    force = record.force[pressing]
+    saturated = force >= band.top(std)   # at saturation itself where the noise is nil
+    if saturated.any() and not (band.live(force, std) & ~saturated).any():
+        top = ", ".join(f"{v:.3g}" for v in np.broadcast_to(band.saturation, (record.mesh.cols,)))
+        raise RecordError(f"{record.source}: {stream}: through the pull and the keep every segment reads at its "
+                          f"saturation ({top} N, P1, P2, ...) or under its dead band: the array did not measure "
+                          "the push's force; a sensor with a larger range, or a shallower push")
 
 
 def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: int = STARTS,
@@ -82,8 +103,8 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: i
     computes the second: the same starts as in one call).
 
     Raises:
-        RecordError: readings that carry no force (``require_readings``), or no closed
-            form has a solution (each reason named).
+        RecordError: readings that carry no force (``require_readings``).
+        NoClosedForm: no closed form has a solution (each reason named).
     """
     require_readings(record)
     failed: list[str] = [] if after is None else list(after.failed)
@@ -108,8 +129,66 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: i
                 reported = replace(solution, message=f"{note}; {solution.message}" if solution.message else note)
         starts.append(solution.params)
     if reported is None:
-        raise RecordError(f"{record.source}: no closed form has a solution ({'; '.join(failed)})")
+        raise NoClosedForm(f"{record.source}: no closed form has a solution ({'; '.join(failed)})")
     return ClosedForm(reported, tuple(starts), tuple(failed), tried)
+
+
+class NoClosedForm(RecordError):
+    """No closed form of the phase has a solution: the fit starts from ``searched_starts``."""
+
+
+# Where no closed form has a solution (a record the three-element model describes badly:
+# an effect in no catalogue bends the curves the equations read), the fit starts from a
+# search over the model's two times on the record's own scales, E at each by linear least
+# squares (at fixed times the force is linear in E).
+SEARCH_VOIGT_TIMES = (0.1, 0.3, 1.0, 3.0)      # c1/E in pull times
+SEARCH_RELAXATION_TIMES = (1.0, 10.0, 100.0)   # c2/E in keep times (pull times before a keep)
+SEARCH_GAMMA = 0.3                               # where the markers show no uniaxial compression
+SEARCHED = "the fit started from a search over the relaxation times"
+
+
+def searched_starts(record: Record, forward: QuasiStaticFE, earlier: Estimate | None = None,
+                    count: int = STARTS) -> list[dict[str, float]]:
+    """The fit's starts where no closed form has a solution (``NoClosedForm``): the
+    ``count`` grid points over c1/E and c2/E (``SEARCH_VOIGT_TIMES``,
+    ``SEARCH_RELAXATION_TIMES``) whose least-squares E leaves the smallest error in the
+    live readings, gamma from the markers' uniform strain in the pull, and ``earlier``'s
+    parameters (the push before's final fit).
+
+    Raises:
+        RecordError: no grid point gives the readings a positive E, and no ``earlier``.
+    """
+    profile = record.profile()
+    live = sensor_noise(record).force_live & np.isfinite(record.force)
+    measured = record.force[live]
+    try:
+        u = displacement_at_depth(record, profile.depth)
+        gamma = float(np.clip(lateral_strain_ratio(record.mesh.nodes, u), 0.0, 0.45))
+    except RecordError:
+        gamma = SEARCH_GAMMA
+    gamma = gamma if np.isfinite(gamma) else SEARCH_GAMMA
+    pull = profile.pull_time
+    slow = profile.keep_time if profile.keep_time > 0 else pull
+    scored = []
+    for voigt in SEARCH_VOIGT_TIMES:
+        for relaxation in SEARCH_RELAXATION_TIMES:
+            c1, c2 = voigt * pull, relaxation * slow
+            unit = forward.predict(Model(three_element(1.0, c1, c2)), gamma, profile, record.force_t,
+                                   record.marker_t[:1]).force[live]
+            norm = float(unit @ unit)
+            E = float(unit @ measured) / norm if norm > 0 else np.nan
+            if E > 0:
+                scored.append((float(np.sum((measured - E * unit) ** 2)), {"E": E, "c1": E * c1, "c2": E * c2,
+                                                                             "gamma": gamma}))
+    starts = [start for _, start in sorted(scored, key=lambda s: s[0])[:count]]
+    if earlier is not None:
+        start = {k: float(earlier.params[k]) for k in BASE_PARAMETERS}
+        if all(np.isfinite(v) for v in start.values()):
+            starts.append(start)
+    if not starts:
+        raise RecordError(f"{record.source}: no closed form has a solution, and no E > 0 fits the readings "
+                          "at any relaxation time searched: nothing to start a fit from")
+    return starts
 
 
 def unsaturated_nodes(record: Record) -> np.ndarray | None:

@@ -45,6 +45,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.identification.pipeline import (
+    SEARCHED,
     ClosedForm,
     closed_form,
     fit_from_starts,
@@ -53,6 +54,7 @@ from rheo_ros.identification.pipeline import (
     interim_start,
     met_at_rest,
     relaxation_unseen,
+    searched_starts,
     undetermined,
     without_undetermined,
 )
@@ -313,12 +315,12 @@ class PhaseIdentifier:
                                          rec.profile(), rec.force_t, rec.marker_t[:1], tabulated=True)
         return self._update(job, closed.estimate, force_error(rec, predicted.force)[0]), closed
 
-    def fit(self, job: Job, closed: ClosedForm | None, previous: Estimate | None = None,
-            earlier: Estimate | None = None) -> tuple[Update, Estimate]:
+    def fit(self, job: Job, closed: ClosedForm | None, earlier: Estimate | None = None) -> tuple[Update, Estimate]:
         """The whole-record fit of the job's data (``pipeline.fit_from_starts``) from the
         closed form's starts (with ``earlier``, the last fit of the push before, where the
-        closed form leaves a parameter open) or, where it has none, from ``previous`` (this
-        push's last fit) or ``earlier``, checked for a relaxation the data do not show.
+        closed form leaves a parameter open) or, where it has none, from a search over the
+        relaxation times and ``earlier`` (``pipeline.searched_starts``), checked for a
+        relaxation the data do not show.
 
         Raises:
             RecordError: no start, or the fit failed from every start.
@@ -332,13 +334,8 @@ class PhaseIdentifier:
             # the same starts as rheo analyze's one call.
             closed = closed_form(job.event.name, rec, self.forward, after=closed)
             starts, note = fit_starts(rec, closed, self.config, earlier), ""
-        elif previous is not None:
-            starts, note = [previous.params], "no closed form; fit started from the previous update"
-        elif earlier is not None:
-            starts, note = [earlier.params], "no closed form; fit started from the push before"
-        else:
-            e = job.event
-            raise RecordError(f"experiment {e.experiment} {e.name}: no closed form and no earlier fit to start from")
+        else:   # as rheo analyze: a search over the relaxation times, and the push before's fit
+            starts, note = searched_starts(rec, self.forward, earlier), f"no closed form has a solution: {SEARCHED}"
         fit = fit_from_starts(rec, self.forward, starts, noise=sensor_noise(rec))
         if note:
             fit = replace(fit, message=f"{note}; {fit.message}")
@@ -677,23 +674,23 @@ class OnlineEstimator:
             yield self.fit(job, closed)
 
     def fit(self, job: Job, closed: ClosedForm | None,
-            run: Callable[[Job, ClosedForm | None, Estimate | None, Estimate | None], tuple[Update, Estimate]]
+            run: Callable[[Job, ClosedForm | None, Estimate | None], tuple[Update, Estimate]]
             | None = None) -> Update:
         """The whole-record fit of a job, started from its closed form or, where that has
-        no solution, from this push's previous fit; the final fit of the push before helps
-        where the closed form leaves a parameter open (``PhaseIdentifier.fit``), as ``rheo
-        analyze`` has it.
+        no solution, from a search over the relaxation times; the final fit of the push
+        before helps where the closed form leaves a parameter open or has none
+        (``PhaseIdentifier.fit``), as ``rheo analyze`` has it.
 
         Args:
             closed: the job's closed form (None: it has none).
             run: does the fit (``PhaseIdentifier.fit`` or a call of it in another process).
 
         Raises:
-            RecordError: no closed form and no previous fit to start from.
+            RecordError: no start, or the fit failed from every start.
         """
         e = job.event
         earlier = self._final[1] if self._final and self._final[0] < e.experiment else None
-        update, fit = (run or self.identify.fit)(job, closed, self._fits.get(e.experiment), earlier)
+        update, fit = (run or self.identify.fit)(job, closed, earlier)
         self._fits = {e.experiment: fit}
         if job.final:
             self._final = (e.experiment, fit)   # as rheo analyze has it: the push's final fit
