@@ -22,6 +22,7 @@ from rheo_ros.record import RecordError
 class Rec:
     source = "recX"
     sensor = None   # a model record: no sensor read
+    dead_band = None
 
 
 def statistics(cost=100.0, deviance=0.0):

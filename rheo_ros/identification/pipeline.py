@@ -70,7 +70,8 @@ STARTS = 2
 
 def require_readings(record: Record, stream: str = "tactile") -> None:
     """Refuse a record whose tactile readings carry no force (``SensorReading.unreadable``,
-    or a push read only at saturation): every number identified from them would be wrong. ``stream`` names them in the message.
+    or a push read only at saturation): every number identified from them would be
+    wrong. ``stream`` names them in the message.
 
     Raises:
         RecordError: names the record's source, the stream and what is wrong.
@@ -181,10 +182,8 @@ def searched_starts(record: Record, forward: QuasiStaticFE, earlier: Estimate | 
                 scored.append((float(np.sum((measured - E * unit) ** 2)), {"E": E, "c1": E * c1, "c2": E * c2,
                                                                              "gamma": gamma}))
     starts = [start for _, start in sorted(scored, key=lambda s: s[0])[:count]]
-    if earlier is not None:
-        start = {k: float(earlier.params[k]) for k in BASE_PARAMETERS}
-        if all(np.isfinite(v) for v in start.values()):
-            starts.append(start)
+    if (start := start_from(earlier)) is not None:
+        starts.append(start)
     if not starts:
         raise RecordError(f"{record.source}: no closed form has a solution, and no E > 0 fits the readings "
                           "at any relaxation time searched: nothing to start a fit from")
@@ -291,11 +290,18 @@ def fit_starts(record: Record, closed: ClosedForm, config: EstimatorConfig,
         in_view = relaxation_in_view(record, closed.estimate.params)
         if in_view != closed.estimate.params:
             starts.append(in_view)
-        if earlier is not None:
-            start = {k: float(earlier.params[k]) for k in BASE_PARAMETERS}
-            if all(np.isfinite(v) for v in start.values()) and start not in starts:
-                starts.append(start)
+        if (start := start_from(earlier)) is not None and start not in starts:
+            starts.append(start)
     return starts
+
+
+def start_from(estimate: Estimate | None) -> dict[str, float] | None:
+    """An estimate's base parameters as a fit's start (None: no estimate, or a value
+    that is not finite)."""
+    if estimate is None:
+        return None
+    start = {k: float(estimate.params[k]) for k in BASE_PARAMETERS}
+    return start if all(np.isfinite(v) for v in start.values()) else None
 
 
 def interim_start(record: Record, closed: ClosedForm, config: EstimatorConfig) -> dict[str, float]:
