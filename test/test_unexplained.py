@@ -106,6 +106,23 @@ def test_the_report_shows_what_remains_with_the_fitted_shape_over_it(lagging):
     assert '<figure class="remaining" id="remaining">' in page
 
 
+def assert_named_and_right(report: dict, effect_id: str, own: dict[str, float], material: dict[str, float],
+                           stds: float) -> None:
+    """The diagnosis names ``effect_id`` alone, explained and adequate, and the final
+    model's ``own`` parameters and E, c1, c2 (``material``'s) are each within ``stds`` of
+    its std of the value given."""
+    d = report["diagnosis"]
+    assert (d["missing_effects"], d["explained"], d["adequate"]) == ([effect_id], True, True), d["evidence"]
+    final = report["models"][-1]
+    for name, value in {**own, **{k: material[k] for k in ("E", "c1", "c2")}}.items():
+        assert abs(final["params"][name] - value) < stds * final["std"][name], (name, final["params"][name],
+                                                                              final["std"][name])
+
+
+def simulated_material(setup: Setup) -> dict[str, float]:
+    """E, c1, c2 the package's simulator was given."""
+    return {k: setup.params[f"material.{k}"] for k in ("E", "c1", "c2")}
+
 def install_plugin(root: Path, module: str, source: str, entry_points: str) -> Path:
     """A plugin package of one module (``source``) whose ``entry_points`` (the TOML table's
     lines) register it, installed by pip into ``root``/site; returns that folder."""
@@ -193,13 +210,9 @@ def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_para
     15 std, high)."""
     _, truth, bag, _ = lagging
     report = analyze(bag, workers=1).to_json()
-    d = report["diagnosis"]
-    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["sensor_lag"], True, True), d["evidence"]
-    final = report["models"][-1]
-    expected = {"sensor_lag.time": truth["effects"]["sensor_lag"][0], "sensor_lag.share": truth["effects"]["sensor_lag"][1],
-                **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
-    for name, value in expected.items():
-        assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])
+    lag = truth["effects"]["sensor_lag"]
+    assert_named_and_right(report, "sensor_lag", {"sensor_lag.time": lag[0], "sensor_lag.share": lag[1]},
+                           truth["material"], stds=3)
 
 
 def test_on_the_package_simulators_bag_the_lag_plugin_is_named_and_right(tmp_path, lag_plugin):
@@ -217,13 +230,8 @@ def test_on_the_package_simulators_bag_the_lag_plugin_is_named_and_right(tmp_pat
                                 "simulator.effects": ["sensor_lag"], **truth}))
     simulate_to_bag(setup, 7, tmp_path / "bag")
     report = analyze(str(tmp_path / "bag"), workers=1).to_json()
-    d = report["diagnosis"]
-    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["sensor_lag"], True, True), d["evidence"]
-    final = report["models"][-1]
-    expected = {"sensor_lag.time": 1.5, "sensor_lag.share": 0.3,
-                **{k: setup.params[f"material.{k}"] for k in ("E", "c1", "c2")}}
-    for name, value in expected.items():
-        assert abs(final["params"][name] - value) < 6 * final["std"][name], (name, final["params"][name], final["std"][name])
+    assert_named_and_right(report, "sensor_lag", {"sensor_lag.time": 1.5, "sensor_lag.share": 0.3},
+                           simulated_material(setup), stds=6)
 
 
 def test_parameters_at_a_bound_have_no_std_and_are_named(tmp_path):
@@ -313,13 +321,8 @@ def test_with_the_markers_effect_as_a_plugin_it_is_named_and_its_drift_measured(
     bag, _, truth, site = drifting
     with plugin_on_path(site, "camera_drift", "rheo_camera_drift"):
         report = analyze(bag, workers=1).to_json()
-    d = report["diagnosis"]
-    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["camera_drift"], True, True), d["evidence"]
-    final = report["models"][-1]
-    expected = {"camera_drift.vx": DRIFT[0], "camera_drift.vy": DRIFT[1],
-                **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
-    for name, value in expected.items():
-        assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])
+    assert_named_and_right(report, "camera_drift", {"camera_drift.vx": DRIFT[0], "camera_drift.vy": DRIFT[1]},
+                           truth["material"], stds=3)
 
 
 # A material law of another family, in no catalogue: continuum damage (Mullins-like).
@@ -396,12 +399,7 @@ def test_with_the_material_law_as_a_plugin_it_is_named_and_its_softening_measure
     bag, _, truth, site = damaged
     with plugin_on_path(site, "damage", "rheo_damage"):
         report = analyze(bag, workers=1).to_json()
-    d = report["diagnosis"]
-    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["damage"], True, True), d["evidence"]
-    final = report["models"][-1]
-    expected = {"damage.softening": SOFTENING, **{k: truth["material"][k] for k in ("E", "c1", "c2")}}
-    for name, value in expected.items():
-        assert abs(final["params"][name] - value) < 3 * final["std"][name], (name, final["params"][name], final["std"][name])
+    assert_named_and_right(report, "damage", {"damage.softening": SOFTENING}, truth["material"], stds=3)
 
 
 def test_on_the_package_simulators_bag_the_damage_plugin_is_named_and_right(tmp_path, damaged):
@@ -420,9 +418,4 @@ def test_on_the_package_simulators_bag_the_damage_plugin_is_named_and_right(tmp_
                                     "effects.damage.softening": SOFTENING}))
         simulate_to_bag(setup, 7, tmp_path / "bag")
         report = analyze(str(tmp_path / "bag"), workers=1).to_json()
-    d = report["diagnosis"]
-    assert (d["missing_effects"], d["explained"], d["adequate"]) == (["damage"], True, True), d["evidence"]
-    final = report["models"][-1]
-    expected = {"damage.softening": SOFTENING, **{k: setup.params[f"material.{k}"] for k in ("E", "c1", "c2")}}
-    for name, value in expected.items():
-        assert abs(final["params"][name] - value) < 6 * final["std"][name], (name, final["params"][name], final["std"][name])
+    assert_named_and_right(report, "damage", {"damage.softening": SOFTENING}, simulated_material(setup), stds=6)
