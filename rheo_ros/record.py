@@ -152,3 +152,37 @@ def segment_stage(t: np.ndarray, depth: np.ndarray, source: str = "<memory>") ->
         )
     except ValueError as exc:
         raise RecordError(f"{source}: stage: {exc}") from None
+
+
+def contact_depth(record: Record) -> float:
+    """Where the stage met the specimen in this push (m of stage depth): the push's depth
+    less how far the top markers sank between before the push and the hold (they follow
+    the stage while it presses). 0 for a first push; a later one meets the permanent set
+    the earlier ones left (and whatever recovery is still under way)."""
+    profile, mesh = record.profile(), record.mesh
+    top = mesh.nodes[:, 1] >= mesh.nodes[:, 1].max() - 1e-12
+    before, hold = frames_before(record), frames_held(record)
+    if not before.any() or not hold.any():
+        return 0.0
+    sank = float(np.mean(record.markers[before][:, top, 1]) - np.mean(record.markers[hold][:, top, 1]))
+    return float(np.clip(profile.depth - sank, 0.0, profile.depth))
+
+
+def contact_time(record: Record) -> float:
+    """When the stage met the specimen in this push (s): its pull's start, later by the
+    ``contact_depth`` at the pull's speed for a push meeting an earlier one's set."""
+    profile = record.profile()
+    if not profile.before:
+        return profile.t_pull_start
+    return profile.t_pull_start + contact_depth(record) * profile.pull_time / profile.depth
+
+
+def frames_before(record: Record) -> np.ndarray:
+    """Marker frames before the push's pull."""
+    return record.marker_t < record.profile().t_pull_start
+
+
+def frames_held(record: Record) -> np.ndarray:
+    """Marker frames of the hold (between the pull and the let-go)."""
+    profile = record.profile()
+    return (record.marker_t > profile.t_pull_end) & (record.marker_t < profile.t_keep_end)

@@ -70,9 +70,10 @@ class DeadBand:
 class CellFault:
     """A tactile cell that does not read its load, as the data show it (``read_sensor``).
 
-    ``kind``: ``dead``, one reading ``value`` (Pa) throughout; ``saturated``, clipped
-    alone at ``value`` (Pa). ``peak`` (Pa): where the other cells of its column (of its
-    segment, for a one-row array) peak, the load it missed.
+    ``kind``: ``dead``, one reading ``value`` (Pa) from ``since`` (s; None: throughout)
+    to the end; ``saturated``, clipped alone at ``value`` (Pa). ``peak`` (Pa): where the
+    other cells of its column (of its segment, for a one-row array) peak meanwhile, the
+    load it missed.
     """
 
     row: int
@@ -80,17 +81,23 @@ class CellFault:
     kind: str
     value: float
     peak: float
+    since: float | None = None
 
     def warning(self) -> str:
+        where = f"tactile cell (row {self.row}, col {self.col})"
+        if self.kind == "dead" and self.since is None:
+            return (f"{where} reads {self.value:g} throughout while the other cells of its column peak at "
+                    f"{self.peak:.4g} Pa: left out, its segment read from its other cells")
         if self.kind == "dead":
-            return (f"tactile cell (row {self.row}, col {self.col}) reads {self.value:g} throughout while the other "
-                    f"cells of its column peak at {self.peak:.4g} Pa: left out, its segment read from its other cells")
-        return (f"tactile cell (row {self.row}, col {self.col}) saturates alone at {self.value:.4g} Pa while the other "
+            return (f"{where} reads {self.value:g} from {self.since:.3f} s on while the other cells of its column "
+                    f"peak at {self.peak:.4g} Pa: left out from then, its segment read from its other cells")
+        return (f"{where} saturates alone at {self.value:.4g} Pa while the other "
                 f"cells of its column peak at {self.peak:.4g} Pa: its segment's readings from there up are not live "
                 "(they bound the force from below)")
 
     def to_json(self) -> dict:
-        return {"row": self.row, "col": self.col, "kind": self.kind, "value": self.value, "peak": self.peak}
+        return {"row": self.row, "col": self.col, "kind": self.kind, "value": self.value, "peak": self.peak,
+                "since": self.since}
 
 
 @dataclass(frozen=True)
@@ -195,23 +202,32 @@ class TactileArray:
         """First column of each segment that owns columns (``nodal_forces``)."""
         return np.flatnonzero(np.diff(self.segment, prepend=-1))
 
-    def segment_forces(self, sums: np.ndarray) -> np.ndarray:
-        """The segment forces (T, nodes) in N of segment sums (``nodal_forces``) with the
-        dead cells left out: a dead cell's constant reading taken off and its segment's
-        other cells scaled up to the whole segment. Scaled, not a cell fewer: the forward
-        model integrates each segment over all its columns, and a nodal force is spread
-        evenly over its cells, so the remaining cells stand for the missing one (in the
-        plane FE the pressure varies along x within a segment: first order there)."""
+    def segment_forces(self, sums: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The segment forces (T, nodes) in N of segment sums (``nodal_forces``) at stamps
+        ``t`` (T,) with the dead cells left out from when they died: a dead cell's constant
+        reading taken off and its segment's other cells scaled up to the whole segment.
+        Scaled, not a cell fewer: the forward model integrates each segment over all its
+        columns, and a nodal force is spread evenly over its cells, so the remaining cells
+        stand for the missing one (in the plane FE the pressure varies along x within a
+        segment: first order there)."""
+        sums = np.asarray(sums, float)
         dead = [f for f in self.faults if f.kind == "dead"]
         if not dead:
             return sums
+        out = sums.copy()
         cells = self.cells_per_segment.astype(float)
-        stuck, left = np.zeros(self.nodes), cells.copy()
-        for fault in dead:
-            j = self.segment[fault.col]
-            stuck[j] += fault.value * self.cell_area
-            left[j] -= 1
-        return (np.asarray(sums, float) - stuck) * (cells / np.maximum(left, 1.0))
+        # Each stretch between two deaths has its own set of dead cells.
+        starts = sorted({-math.inf if f.since is None else f.since for f in dead})
+        for k, start in enumerate(starts):
+            rows = (np.asarray(t) >= start) & (np.asarray(t) < (starts[k + 1] if k + 1 < len(starts) else math.inf))
+            stuck, left = np.zeros(self.nodes), cells.copy()
+            for fault in dead:
+                if (-math.inf if fault.since is None else fault.since) <= start:
+                    j = self.segment[fault.col]
+                    stuck[j] += fault.value * self.cell_area
+                    left[j] -= 1
+            out[rows] = (sums[rows] - stuck) * (cells / np.maximum(left, 1.0))
+        return out
 
 
 @dataclass(frozen=True)
@@ -254,13 +270,17 @@ NOISE_AGREES = 1.5         # a stated noise within this factor of the data's agr
 class TactileReadout:
     """What a tactile array's readings show of its cells, gathered frame by frame.
 
-    Every fact is a count, an extreme or a set, so the same frames give the same facts
-    however they are grouped (the node adds one frame at a time, a whole bag adds them
-    all: one computation). ``distinct`` holds the distinct non-zero readings while there
-    are at most ``MAX_DISTINCT`` (quantised readings have few; continuous ones overflow
-    it and are dropped: ``overflow``).
+    Every fact is a count, an extreme, a set or the run of equal readings each cell
+    ends with, so the same frames give the same facts however they are grouped (the node
+    adds a block of frames at a time, a whole bag adds them all: one computation).
+    ``distinct`` holds the distinct non-zero readings while there are at most
+    ``MAX_DISTINCT`` (quantised readings have few; continuous ones overflow it and are
+    dropped: ``overflow``). ``segment`` (column -> segment) groups a one-row array's
+    cells by segment; more rows are grouped by column (the plane model's pressure is the
+    same along z).
     """
 
+    segment: np.ndarray | None = None
     readings: int = 0
     zeros: int = 0
     negatives: int = 0
@@ -269,19 +289,32 @@ class TactileReadout:
     at_largest: int = 0        # frames in which some cell reads ``largest``
     distinct: np.ndarray = field(default_factory=lambda: np.empty(0))
     overflow: bool = False
-    # Per cell (rows, cols), None before the first frame: its lowest and highest reading
-    # and the frames in which it reads its highest (a dead or a lone saturated cell).
-    cell_low: np.ndarray | None = None
+    first_t: float = math.nan  # the first frame's stamp (s)
+    # Per cell (rows, cols), None before the first frame: its highest reading and the
+    # frames in which it reads it (a lone saturated cell); the reading it ends with, since
+    # when (s) and for how many frames, and the highest load its group's cells read
+    # meanwhile (median over the group, Pa): a dead cell reads one value on under a load.
     cell_high: np.ndarray | None = None
     cell_at_high: np.ndarray | None = None
+    cell_last: np.ndarray | None = None
+    cell_since: np.ndarray | None = None
+    cell_run: np.ndarray | None = None
+    cell_load: np.ndarray | None = None
 
-    def add(self, images: np.ndarray) -> None:
-        """Frames (..., rows, cols) of readings in Pa."""
+    BLOCK = 4096   # frames taken at once (memory: a frame-by-cell array per block)
+
+    def add(self, images: np.ndarray, t: np.ndarray | None = None) -> None:
+        """Frames (..., rows, cols) of readings in Pa at stamps ``t`` (s; default: the
+        frames' numbers)."""
         images = np.asarray(images, float)
         v = images.ravel()
         if v.size == 0:
             return
-        self._add_cells(images.reshape(-1, *images.shape[-2:]))
+        frames = images.reshape(-1, *images.shape[-2:])
+        stamps = (self.frames + np.arange(len(frames), dtype=float) if t is None
+                  else np.asarray(t, float).reshape(len(frames)))
+        for k in range(0, len(frames), self.BLOCK):
+            self._add_cells(frames[k:k + self.BLOCK], stamps[k:k + self.BLOCK])
         self.readings += v.size
         self.zeros += int(np.count_nonzero(v == 0.0))
         self.negatives += int(np.count_nonzero(v < 0.0))
@@ -292,23 +325,48 @@ class TactileReadout:
         if top > self.largest:
             self.largest, self.at_largest = top, 0
         if top == self.largest:
-            frames = images.reshape(-1, images.shape[-2] * images.shape[-1])
-            self.at_largest += int(np.count_nonzero((frames == top).any(axis=1)))
+            self.at_largest += int(np.count_nonzero((frames == top).any(axis=(1, 2))))
         if not self.overflow:
             self.distinct = np.union1d(self.distinct, v[v != 0.0])
             if self.distinct.size > MAX_DISTINCT:
                 self.overflow, self.distinct = True, np.empty(0)
 
-    def _add_cells(self, frames: np.ndarray) -> None:
-        low, high = frames.min(axis=0), frames.max(axis=0)
+    def _group_load(self, frames: np.ndarray) -> np.ndarray:
+        """(F, rows, cols): the median of each cell's group but itself, per frame."""
+        if frames.shape[1] > 1 or self.segment is None:
+            return np.moveaxis(_median_of_others(np.moveaxis(frames, 1, -1)), -1, 1)
+        load = np.empty_like(frames)
+        for j in np.unique(self.segment):
+            cols = self.segment == j
+            load[:, :, cols] = _median_of_others(frames[:, :, cols])
+        return load
+
+    def _add_cells(self, frames: np.ndarray, t: np.ndarray) -> None:
+        high = frames.max(axis=0)
         at_high = np.count_nonzero(frames == high, axis=0)
+        load = self._group_load(frames)
+        # Where each cell's last run of equal readings starts in this block (-1: before it).
+        before = frames[:1] if self.cell_last is None else self.cell_last[None]
+        changed = np.concatenate([frames[:1] != before, frames[1:] != frames[:-1]])
+        if self.cell_last is None:
+            changed[0] = True
+        index = np.arange(len(frames))[:, None, None]
+        start = np.max(np.where(changed, index, -1), axis=0)
+        later = np.maximum.accumulate(load[::-1], axis=0)[::-1]   # the load from each frame on
+        load_from = np.take_along_axis(later, np.maximum(start, 0)[None], axis=0)[0]
+        fresh = start >= 0
         if self.cell_high is None:
-            self.cell_low, self.cell_high, self.cell_at_high = low, high, at_high
-            return
-        self.cell_low = np.minimum(self.cell_low, low)
-        self.cell_at_high = np.where(high > self.cell_high, at_high,
-                                     self.cell_at_high + np.where(high == self.cell_high, at_high, 0))
-        self.cell_high = np.maximum(self.cell_high, high)
+            self.first_t = float(t[0])
+            self.cell_high, self.cell_at_high = high, at_high
+            self.cell_since, self.cell_run, self.cell_load = t[start], len(frames) - start, load_from
+        else:
+            self.cell_at_high = np.where(high > self.cell_high, at_high,
+                                         self.cell_at_high + np.where(high == self.cell_high, at_high, 0))
+            self.cell_high = np.maximum(self.cell_high, high)
+            self.cell_since = np.where(fresh, t[np.maximum(start, 0)], self.cell_since)
+            self.cell_run = np.where(fresh, len(frames) - start, self.cell_run + len(frames))
+            self.cell_load = np.where(fresh, load_from, np.maximum(self.cell_load, later[0]))
+        self.cell_last = frames[-1].copy()
 
     @property
     def frames(self) -> int:
@@ -331,6 +389,22 @@ class TactileReadout:
         on_lattice = np.abs(v - np.round(v / step) * step) <= tolerance
         resolvable = step > 16.0 * np.finfo(np.float32).eps * float(np.abs(v).max())
         return step if resolvable and bool(on_lattice.all()) else 0.0
+
+
+def _median_of_others(values: np.ndarray) -> np.ndarray:
+    """(..., n): for each entry along the last axis, the median of the other n - 1
+    (-inf where there are none)."""
+    n = values.shape[-1]
+    if n < 2:
+        return np.full(values.shape, -np.inf)
+    ordered = np.sort(values, axis=-1)
+    rank = np.argsort(np.argsort(values, axis=-1, kind="stable"), axis=-1, kind="stable")
+
+    def other(k: int) -> np.ndarray:   # the k-th smallest of the others
+        return np.where(rank > k, ordered[..., k:k + 1], ordered[..., k + 1:k + 2])
+
+    m = n - 1
+    return other(m // 2) if m % 2 else 0.5 * (other(m // 2 - 1) + other(m // 2))
 
 
 @dataclass(frozen=True)
@@ -489,21 +563,22 @@ def unreadable(stated: TactileArray, readout: TactileReadout) -> str:
 
 FAULT_MARGIN = 6.0     # cell noise stds between a faulty cell and the load it missed
 FAULT_SHARE = 0.05     # ... and at least this share of that load (noise-free readings)
+MIN_DEAD_RUN = 10      # frames of one reading under a load before a cell is called dead
 
 
 def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, noise: float, resolution: float,
                 saturation: float) -> tuple[CellFault, ...]:
     """The cells that do not read their load, each against the other cells of its
     column (in the plane model the pressure is the same along z; across a segment's
-    columns it is not), of its segment for a one-row array: a cell with one reading
-    throughout (``dead``: 0, or stuck) where the others peak clearly above it and the
-    dead band, or one whose highest reading, met in many frames (as ``read_sensor``'s
-    saturation), is clearly under their peak and under the array's saturation
-    (``saturated`` alone). Clearly: ``FAULT_MARGIN`` cell noises, two steps and
-    ``FAULT_SHARE`` of the peak."""
+    columns it is not), of its segment for a one-row array: a cell that ends with one
+    reading (``dead``: 0, or stuck; throughout or from when it died) while the others
+    read clearly above it and the dead band meanwhile, or one whose highest reading,
+    met in many frames (as ``read_sensor``'s saturation), is clearly under their peak
+    and under the array's saturation (``saturated`` alone). Clearly: ``FAULT_MARGIN``
+    cell noises, two steps and ``FAULT_SHARE`` of the load."""
     if readout.cell_high is None:
         return ()
-    low, high, at_high = readout.cell_low, readout.cell_high, readout.cell_at_high
+    high, at_high = readout.cell_high, readout.cell_at_high
     rows, cols = high.shape
     floor = max(threshold, 0.0)
     faults = []
@@ -517,14 +592,21 @@ def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, 
             others[r, c] = False
             if not others.any():
                 continue
-            peak = float(np.median(high[others]))
-            margin = max(FAULT_MARGIN * np.nan_to_num(noise), 2.0 * resolution, FAULT_SHARE * peak)
-            value = float(high[r, c])
-            if low[r, c] == value and peak > max(value, floor) + margin:
-                faults.append(CellFault(r, c, "dead", value, peak))
-            elif _often(at_high[r, c], readout.frames) and floor < value < saturation and peak > value + margin:
-                faults.append(CellFault(r, c, "saturated", value, peak))
+            value, load = float(readout.cell_last[r, c]), float(readout.cell_load[r, c])
+            if readout.cell_run[r, c] >= MIN_DEAD_RUN and load > max(value, floor) + _clear(noise, resolution, load):
+                since = float(readout.cell_since[r, c])
+                faults.append(CellFault(r, c, "dead", value, load, None if since == readout.first_t else since))
+                continue
+            peak, top = float(np.median(high[others])), float(high[r, c])
+            if _often(at_high[r, c], readout.frames) and floor < top < saturation and peak > top + _clear(
+                    noise, resolution, peak):
+                faults.append(CellFault(r, c, "saturated", top, peak))
     return tuple(faults)
+
+
+def _clear(noise: float, resolution: float, load: float) -> float:
+    """How far a load must be above a cell's reading to be clearly missed by it."""
+    return max(FAULT_MARGIN * np.nan_to_num(noise), 2.0 * resolution, FAULT_SHARE * load)
 
 
 def _often(count: int, frames: int) -> bool:

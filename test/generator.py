@@ -207,7 +207,8 @@ class Sensor:
     saturation: float = math.inf    # Pa
     marker_noise: float = 2e-5      # m, Gaussian per coordinate
     clipped_cell: tuple[int, int, float] | None = None   # (row, col, Pa): that cell alone saturates there
-    dead_cell: tuple[int, int, float] | None = None      # (row, col, value): that cell reads value throughout
+    dead_cell: tuple[int, int, float] | None = None      # (row, col, value): that cell reads value ...
+    dead_from: float = -math.inf    # s: ... from this stamp on (throughout by default)
     unit: float = 1.0               # Pa per unit written: 1000 reports kPa (read as Pa: 1000 x too small)
 
 
@@ -473,7 +474,7 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         p[:, r, c] = np.minimum(p[:, r, c], top)
     if sensor.dead_cell is not None:
         r, c, value = sensor.dead_cell
-        p[:, r, c] = value
+        p[tac_t >= sensor.dead_from, r, c] = value
     p = p / sensor.unit
 
     # Markers: u_y = -eps y (bottom on the sensor), u_x = gamma eps (x - W/2) (free sides).

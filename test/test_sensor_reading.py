@@ -81,18 +81,23 @@ def test_readings_below_zero_are_a_linear_cell():
 
 
 def test_the_readout_is_the_same_frame_by_frame_as_whole(sensors):
-    """The node adds one frame at a time, a bag all at once: the same facts."""
-    images = g.synthesize(sensor="quantised", seed=1).images
+    """The node adds a block of frames at a time, a bag all at once: the same facts,
+    with a cell dying half way (its run and the load its column read meanwhile)."""
+    data = g.synthesize(sensor="quantised", seed=1)
+    images, t = data.images.copy(), data.tactile_t
+    die = int(np.argmax(images[:, 3, 7]))   # under the highest load: it read non-zero until then
+    images[die:, 2, 7] = 0.0
     whole, frames = TactileReadout(), TactileReadout()
-    whole.add(images)
-    for image in images:
-        frames.add(image)
+    whole.add(images, t)
+    for k in range(0, len(images), 37):
+        frames.add(images[k:k + 37], t[k:k + 37])
     assert whole.readings == frames.readings and whole.zeros == frames.zeros
     assert whole.smallest_positive == frames.smallest_positive and whole.at_largest == frames.at_largest
     np.testing.assert_array_equal(whole.distinct, frames.distinct)
-    for cells in ("cell_low", "cell_high", "cell_at_high"):
+    for cells in ("cell_high", "cell_at_high", "cell_last", "cell_since", "cell_run", "cell_load"):
         np.testing.assert_array_equal(getattr(whole, cells), getattr(frames, cells))
     assert whole.resolution == frames.resolution == 50.0
+    assert whole.cell_since[2, 7] == t[die] and whole.cell_run[2, 7] == len(t) - die
 
 
 def stated(**tactile) -> str:

@@ -28,7 +28,6 @@ from rheo_ros.identification.pipeline import (
     SEARCHED,
     NoClosedForm,
     closed_form,
-    contact_depth,
     fit_from_starts,
     fit_starts,
     relaxation_unseen,
@@ -46,7 +45,7 @@ from rheo_ros.models.effects import Model, effect_class
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
-from rheo_ros.record import RecordError
+from rheo_ros.record import RecordError, contact_depth
 
 TOPIC_OF = {"stage": STAGE_TOPIC, "image": TACTILE_TOPIC, "markers": MARKERS_TOPIC}
 CORE_TOPIC = {"stage": STAGE_TOPIC, "force": TACTILE_TOPIC, "markers": MARKERS_TOPIC}   # the core's stream names

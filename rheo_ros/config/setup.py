@@ -243,25 +243,30 @@ class Setup:
         Raises:
             RecordError: the samples do not make a record (names the field).
         """
-        readout = TactileReadout()
-        readout.add(images)
-        sensor, forces = self.sensor(readout, self.tactile.nodal_forces(images), markers)
+        readout = self.readout()
+        readout.add(images, tactile_t)
+        sensor, forces = self.sensor(readout, self.tactile.nodal_forces(images), tactile_t, markers)
         return Record(mesh=self.mesh, stage_t=stage_t, stage_depth=stage_depth, force_t=tactile_t,
                       force=forces, marker_t=marker_t, markers=markers, source=source, sensor=sensor)
 
-    def sensor(self, readout: TactileReadout, sums: np.ndarray,
+    def readout(self) -> TactileReadout:
+        """An empty readout of this array's frames (``sensor`` reads it)."""
+        return TactileReadout(segment=self.tactile.segment)
+
+    def sensor(self, readout: TactileReadout, sums: np.ndarray, t: np.ndarray,
                markers: np.ndarray) -> tuple[SensorReading, np.ndarray]:
         """The sensor as these readings show it (``sensors.read_sensor``): the tactile
-        readings' ``readout``, the segment sums (T, nodes) in N (``nodal_forces``) and the
-        marker frames (T, N, 2) they came with; and the segment forces a record holds, the
-        dead cells left out (``TactileArray.segment_forces``). A parameter counts as
+        readings' ``readout``, the segment sums (T, nodes) in N (``nodal_forces``) at
+        stamps ``t`` (s) and the marker frames (T, N, 2) they came with; and the segment
+        forces a record holds, the dead cells left out from when they died
+        (``TactileArray.segment_forces``). A parameter counts as
         stated when it differs from its default (a ROS node cannot tell a default from a
         value set to it)."""
         given = frozenset(k for k in ("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise")
                           if self.params[k] != DEFAULTS[k])
         marker_std = difference_noise(markers)[0] if len(markers) else float("nan")
         sensor = read_sensor(self.tactile, readout, sums, marker_std, self.params["markers.noise"], given)
-        return sensor, sensor.tactile.segment_forces(sums)
+        return sensor, sensor.tactile.segment_forces(sums, t)
 
     @property
     def camera(self) -> MarkerCamera:

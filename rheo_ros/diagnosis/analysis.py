@@ -22,9 +22,8 @@ from rheo_ros.diagnosis.remaining import remaining
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import SensorNoise
-from rheo_ros.identification.pipeline import contact_depth
 from rheo_ros.identification.pooling import Change, Pool, pool_experiments, pooled
-from rheo_ros.record import Record
+from rheo_ros.record import Record, contact_depth
 
 
 @dataclass(frozen=True)

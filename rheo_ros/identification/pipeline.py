@@ -29,7 +29,7 @@ from rheo_ros.identification.fit import away_from_boundaries, fit_record
 from rheo_ros.identification.noise import SensorNoise, Weights, force_noise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.record import Record, RecordError
+from rheo_ros.record import Record, RecordError, contact_depth, contact_time, frames_before, frames_held
 
 # The closed forms a phase's data allow, best first: the first with a solution is
 # reported, the first two are the whole-record fit's starts. After release the
@@ -206,20 +206,6 @@ def unsaturated_nodes(record: Record) -> np.ndarray | None:
 SHALLOW_CONTACT = 0.01
 
 
-def contact_depth(record: Record) -> float:
-    """Where the stage met the specimen in this push (m of stage depth): the push's depth
-    less how far the top markers sank between before the push and the hold (they follow
-    the stage while it presses). 0 for a first push; a later one meets the permanent set
-    the earlier ones left (and whatever recovery is still under way)."""
-    profile, mesh = record.profile(), record.mesh
-    top = mesh.nodes[:, 1] >= mesh.nodes[:, 1].max() - 1e-12
-    before, hold = _frames_before(record), _frames_held(record)
-    if not before.any() or not hold.any():
-        return 0.0
-    sank = float(np.mean(record.markers[before][:, top, 1]) - np.mean(record.markers[hold][:, top, 1]))
-    return float(np.clip(profile.depth - sank, 0.0, profile.depth))
-
-
 def met_at_rest(record: Record) -> bool:
     """A later push (``profile.before``) that met the specimen at the stage's zero
     (``contact_depth`` within ``SHALLOW_CONTACT`` of the depth): whatever the pushes before
@@ -227,18 +213,9 @@ def met_at_rest(record: Record) -> bool:
     recovered fully - and is modelled from rest. (The three-element model's state is two
     non-negative strains summing to the top's sinking: none left, no state left.)"""
     profile = record.profile()
-    if not profile.before or not (_frames_before(record).any() and _frames_held(record).any()):
+    if not profile.before or not (frames_before(record).any() and frames_held(record).any()):
         return False   # no view of the top before the push or during the hold: cannot tell
     return contact_depth(record) <= SHALLOW_CONTACT * profile.depth
-
-
-def _frames_before(record: Record) -> np.ndarray:
-    return record.marker_t < record.profile().t_pull_start
-
-
-def _frames_held(record: Record) -> np.ndarray:
-    profile = record.profile()
-    return (record.marker_t > profile.t_pull_end) & (record.marker_t < profile.t_keep_end)
 
 
 def as_fresh_push(record: Record) -> Record:
@@ -470,7 +447,7 @@ def force_error(record: Record, predicted: np.ndarray) -> tuple[float, dict[str,
     true value), leaving out readings within a phase boundary's guard (mid-jump there;
     the quasi-static model has jumped)."""
     profile = record.profile()
-    away = away_from_boundaries(record.force_t, profile)
+    away = away_from_boundaries(record.force_t, profile, contact_time(record))
     err = (record.reading(predicted).sum(axis=1) - record.force.sum(axis=1))[away]
     which = phase_of(record.force_t[away], profile)
     by_phase = {name: float(np.sqrt(np.mean(err[which == i] ** 2)))

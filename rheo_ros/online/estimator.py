@@ -63,7 +63,7 @@ from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.record import Record, RecordError
-from rheo_ros.sensors import SensorReading, TactileReadout
+from rheo_ros.sensors import SensorReading
 
 
 @dataclass(frozen=True)
@@ -407,8 +407,8 @@ class OnlineEstimator:
                  config: EstimatorConfig | None = None) -> None:
         self.setup, self.mesh = setup, setup.mesh
         self.tactile = setup.tactile
-        self.readout = TactileReadout()   # the tactile readings so far, for the sensor they show
-        self._unread: list[np.ndarray] = []   # frames not yet added to it (added in blocks: cheaper)
+        self.readout = setup.readout()   # the tactile readings so far, for the sensor they show
+        self._unread: list[tuple[float, np.ndarray]] = []   # frames not yet added to it (in blocks: cheaper)
         self.sensor: SensorReading | None = None   # as the last record's readings showed it
         self.config = config or EstimatorConfig()
         self.segmenter = PhaseSegmenter(segmenter)
@@ -452,7 +452,7 @@ class OnlineEstimator:
         if not self._store("force", t, np.asarray(forces, float)):
             return []
         if image is not None:
-            self._unread.append(image)
+            self._unread.append((t, image))
             if len(self._unread) >= self.READOUT_BLOCK:
                 self._read_frames()
         return self._took(self.segmenter.add_force(t, float(np.sum(forces))))
@@ -488,7 +488,7 @@ class OnlineEstimator:
     def _read_frames(self) -> None:
         # The readout's facts are counts, extremes and sets: the same in blocks as frame by frame.
         if self._unread:
-            self.readout.add(np.stack(self._unread))
+            self.readout.add(np.stack([image for _, image in self._unread]), np.array([t for t, _ in self._unread]))
             self._unread = []
 
     def _store(self, stream: str, t: float, value: np.ndarray) -> bool:
@@ -635,7 +635,8 @@ class OnlineEstimator:
         parts = {n: s.window(t0, e.t_end) for n, s in self.streams.items()}
         markers = parts["markers"][1].reshape(-1, *self.mesh.nodes.shape)
         self._read_frames()
-        self.sensor, force = self.setup.sensor(self.readout, parts["force"][1].reshape(-1, self.mesh.cols), markers)
+        self.sensor, force = self.setup.sensor(self.readout, parts["force"][1].reshape(-1, self.mesh.cols),
+                                              parts["force"][0], markers)
         if kind == "new":   # the robot says so: another object, at rest
             self.at_rest_since = max(self.at_rest_since, profile.t_pull_start)
         # Pushes before the last one found at rest are another object's (or fully undone).

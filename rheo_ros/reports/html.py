@@ -56,8 +56,8 @@ from rheo_ros.diagnosis.remaining import describe as describe_remaining
 from rheo_ros.diagnosis.remaining import shape_curve
 from rheo_ros.experiment import PUSH_PHASES, Phase
 from rheo_ros.identification.fit import away_from_boundaries
-from rheo_ros.identification.pipeline import contact_depth
 from rheo_ros.io.files import write_text_atomic
+from rheo_ros.record import contact_depth, contact_time
 
 REPORT_NAME = "report.html"
 MEASURED_COLOUR = "#333333"
@@ -246,7 +246,7 @@ def _remaining_svg(result: Analysis, rest: dict) -> str:
     record = result.record
     t = record.force_t
     residual = record.force.sum(axis=1) - result.final.prediction_total
-    steady = away_from_boundaries(t, record.profile())
+    steady = away_from_boundaries(t, record.profile(), contact_time(record))
     noise = rest["force_noise"]
     with _new_figure(9, 3.4) as fig:
         ax = fig.subplots()
