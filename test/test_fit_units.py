@@ -642,7 +642,7 @@ def test_a_model_above_the_dead_band_where_nothing_was_read_pays_for_it(rec):
 
 def test_a_sample_exactly_one_guard_from_a_boundary_counts():
     t = np.array([0.75, 0.76, 1.25, 1.2])               # the pull starts at 1.0 s
-    assert F.away_from_boundaries(t, PROFILE, 0.25).tolist() == [True, False, True, False]
+    assert F.away_from_boundaries(t, PROFILE, PROFILE.t_pull_start, 0.25).tolist() == [True, False, True, False]
 
 
 def test_a_parameter_without_effect_is_not_bounded(rec):

@@ -565,7 +565,7 @@ def test_force_error_totals_the_nodes_away_from_the_boundaries(short_case):
     off[np.abs(rec.force_t - p.t_pull_end) < 0.04] = 100.0       # mid-jump: left out
     total, by_phase = pl.force_error(rec, rec.force + off)
     assert by_phase == pytest.approx({"pull": 0.5, "keep": 0.0, "release": 1.0}, abs=1e-9)
-    away = away_from_boundaries(rec.force_t, p)
+    away = away_from_boundaries(rec.force_t, p, p.t_pull_start)   # a first push: contact at the pull's start
     which = rec.force_t[away]
     expect = np.sqrt((np.sum((which > p.t_pull_start) & (which < p.t_pull_end)) * 0.25
                       + np.sum(which > p.t_keep_end) * 1.0) / which.size)
@@ -611,9 +611,14 @@ def test_misfit_limit_and_boundaries():
     assert misfit_limit(0) == pytest.approx(1.0 + 5.0 * 1.3)
     t = np.array([0.85, 0.95, 0.96, 1.0, 1.06, 21.0, 40.94, 41.0])
     p = StageProfile(depth=0.5, velocity=0.025, keep_time=20.0, start_delay=1.0)
-    np.testing.assert_array_equal(away_from_boundaries(t, p), [True, True, False, False, True, False, True, False])
-    np.testing.assert_array_equal(away_from_boundaries(t, p, guard=0.1), [True, False, False, False, False,
-                                                                          False, False, False])
+    start = p.t_pull_start   # a first push meets the specimen where its pull starts
+    np.testing.assert_array_equal(away_from_boundaries(t, p, start),
+                                  [True, True, False, False, True, False, True, False])
+    np.testing.assert_array_equal(away_from_boundaries(t, p, start, guard=0.1),
+                                  [True, False, False, False, False, False, False, False])
+    # A later push's contact (here 2.0 s, met 1 s into the pull) is guarded as a boundary.
+    np.testing.assert_array_equal(away_from_boundaries(np.array([1.9, 1.96, 2.04, 2.1]), p, 2.0),
+                                  [True, False, False, True])
 
 
 def stats(**kw):

@@ -101,7 +101,8 @@ class WholeRecordProblem:
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
-        self._use = away_from_boundaries(self.record.force_t, self.profile, contact_time(self.record), self.guard)
+        self._use = away_from_boundaries(self.record.force_t, self.profile, contact_time(self.record),
+                                         self.guard)
         self._force = self.record.force[self._use]
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
@@ -168,7 +169,8 @@ class WholeRecordProblem:
         return rf, float(np.sqrt(np.sum((rm - rm.mean(axis=0)) ** 2) / (rm.size * (n - 1) / n)))
 
 
-def away_from_boundaries(t: np.ndarray, profile: StageProfile, contact: float, guard: float = BOUNDARY_GUARD) -> np.ndarray:
+def away_from_boundaries(t: np.ndarray, profile: StageProfile, contact: float,
+                         guard: float = BOUNDARY_GUARD) -> np.ndarray:
     """Mask of times ``t`` at least ``guard`` s from every phase boundary of ``profile``
     and from the ``contact`` (``record.contact_time``): a later push meets the earlier
     ones' set after its pull began, and the force jumps there (the dashpot in the Voigt

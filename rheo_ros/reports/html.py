@@ -464,7 +464,7 @@ def _force_svg(result: Analysis, k: int) -> str:
     # Each phase's windows, merged where they overlap (a phase's runs never do).
     windows = [(s.phase, i, a, b) for s in totals for i, (a, b) in enumerate(_merged(s.windows))]
     noise = totals[0].noise if totals else np.nan
-    steady = away_from_boundaries(t, profile)
+    steady = away_from_boundaries(t, profile, contact_time(record))
     with _new_figure(9, 5.0) as fig:
         top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1.2))
         _shade_phases(top, profile.phases, label=True)
