@@ -200,3 +200,33 @@ def test_the_generator_makes_out_of_catalogue_bags_and_the_simulator_refuses_to(
     json.dumps(result)
     with pytest.raises(ValueError, match="--outside: the package's simulator has only the catalogue's effects"):
         diagnosis.run(replicates=1, outside=True)
+
+
+def _run_file(path: Path, seed, rows, noise_scale=1.0) -> Path:
+    """A made-up run's ``--json``: made-up rows, each with its index and times."""
+    rows = [{**r, "index": i, "seconds": 1.0 + i, "make_seconds": 0.5, "message": "", "undecided": []}
+            for i, r in enumerate(rows)]
+    path.write_text(json.dumps({"source": "gen.py", "generator": "gen.py", "noise_scale": noise_scale, "quick": True,
+                                "outside_catalogue": False, "seed": seed, "total_seconds": 60.0, "bags": rows}))
+    return path
+
+
+def test_runs_of_one_bench_merge_into_one_table_and_others_are_refused(tmp_path):
+    """A long bench made in parts: two runs' bags scored together as one (the counts add,
+    the threshold comes from both runs' bags, each bag named by its seed and index); runs
+    of another noise, or holding the same seed's bags twice, are refused naming the file."""
+    a = _run_file(tmp_path / "a.json", 5, [_row([]), _row([("adhesion", "held", 5.0)], ["adhesion"])])
+    b = _run_file(tmp_path / "b.json", 6, [_row([], ["sensor_drift"]), _row([("adhesion", "held", 1.0)])])
+    result = diagnosis.run(merge=f"{a},{b}")
+    assert (result["replicates"], result["seed"], result["total_seconds"]) == (4, [5, 6], 120.0)
+    assert result["clean_bags"] == 2 and result["false_claims_on_clean"] == 1
+    assert result["thresholds"]["adhesion"]["threshold"] == 5.0 and result["thresholds"]["adhesion"]["bags_below"] == 1
+    table = diagnosis.format_table(result)
+    assert "(seeds 5, 6, noise x 1" in table and "bag 6:0: none" in table and "bag 6:1: adhesion:held" in table
+    again = diagnosis.run(merge=f"{_run_file(tmp_path / 'merged.json', result['seed'], result['bags'])},"
+                                f"{_run_file(tmp_path / 'c.json', 7, [_row([])])}")
+    assert again["replicates"] == 5 and again["seed"] == [5, 6, 7]
+    with pytest.raises(ValueError, match=r"c2\.json: noise_scale is 2\.0, .*a\.json has 1\.0"):
+        diagnosis.run(merge=f"{a},{_run_file(tmp_path / 'c2.json', 8, [_row([])], noise_scale=2.0)}")
+    with pytest.raises(ValueError, match=r"a\.json both hold seed 5's bags"):
+        diagnosis.run(merge=f"{a},{a}")

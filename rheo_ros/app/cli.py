@@ -356,7 +356,9 @@ def build_parser() -> argparse.ArgumentParser:
                                         "(e.g. test/generator.py; default: the package's simulator)"),
                   plot=(str, None, "also plot exact-set accuracy against effect size into this PNG or SVG file"),
                   outside=(bool, False, "each bag hides an effect in no catalogue instead (needs --generator): "
-                                        "how often a wrong effect is named"))
+                                        "how often a wrong effect is named"),
+                  merge=(str, None, "comma-separated --json files of earlier runs of one bench (each its own "
+                                    "seed) to score as one instead: a long bench made in parts"))
     bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
     bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
     bench_command("scaling", "rheo analyze's time and peak memory (all processes) against the record's length and "

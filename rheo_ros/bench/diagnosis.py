@@ -78,6 +78,7 @@ adequate (too small to see, or taken up by the base parameters).
 from __future__ import annotations
 
 import importlib.util
+import json
 import shutil
 import sys
 import tempfile
@@ -465,12 +466,19 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
 
 def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: float = 1.0,
         generator: str | None = None, target: float | None = None, plot: str | None = None,
-        outside: bool = False) -> dict[str, Any]:
+        outside: bool = False, merge: str | None = None) -> dict[str, Any]:
     """Make, analyse and score ``replicates`` bags from the source ``generator`` (a file
     defining :data:`PROTOCOL`; None: the package's simulator). Bag ``i`` draws from
     ``default_rng((seed, i))``. ``target``: default by the noise (:func:`default_target`);
     ``plot``: also write :func:`plot_accuracy` there; ``outside``: every bag hides an
-    effect in no catalogue instead."""
+    effect in no catalogue instead. ``merge``: comma-separated JSON files of earlier runs
+    (``--json``) to score together instead (:func:`merged`): no bag is made."""
+    if merge:
+        result = merged([Path(f) for f in merge.split(",") if f], target)
+        if plot:
+            plot_accuracy(result, plot)
+            result["plot"] = str(plot)
+        return result
     if outside and generator is None:
         raise ValueError("--outside: the package's simulator has only the catalogue's effects; give --generator")
     name, source = load_source(generator)
@@ -502,6 +510,46 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     return result
 
 
+MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue")   # what runs pooled must share
+
+
+def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
+    """The runs' bags (their ``--json`` files) scored as one bench: a long bench made in
+    parts (sessions, machines), each part its own seed. The runs must share the source,
+    the noise, the records' length and the kind of bags (``MERGED_AS_ONE``), and no two
+    may hold the same bags (one seed twice).
+
+    Raises:
+        ValueError: names the file and what differs, or the seed met twice."""
+    runs = [json.loads(path.read_text()) for path in paths]
+    if not runs:
+        raise ValueError("--merge: no file given")
+    first, seeds = runs[0], {}
+    for path, r in zip(paths, runs):
+        for key in MERGED_AS_ONE:
+            if r.get(key) != first.get(key):
+                raise ValueError(f"--merge: {path}: {key} is {r.get(key)!r}, {paths[0]} has {first.get(key)!r}: "
+                                 "only runs of one bench pool")
+        for seed in np.atleast_1d(r["seed"]).tolist():
+            if seed in seeds:
+                raise ValueError(f"--merge: {path} and {seeds[seed]} both hold seed {seed}'s bags")
+            seeds[seed] = path
+    # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
+    rows = [{"seed": r["seed"], **row} for r in runs for row in r["bags"]]
+    analysed = [row for row in rows if row["outcome"] != "failed"]
+    target = default_target(first["noise_scale"]) if target is None else target
+    return {
+        **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
+        "replicates": len(rows), "seed": list(seeds), "runs": [str(p) for p in paths],
+        **score(rows, target),
+        "seconds_median": float(np.median([row["seconds"] for row in analysed])) if analysed else None,
+        "seconds_max": float(np.max([row["seconds"] for row in analysed])) if analysed else None,
+        "make_seconds_median": float(np.median([row["make_seconds"] for row in rows])) if rows else None,
+        "total_seconds": float(sum(r["total_seconds"] for r in runs)),
+        "bags": rows,
+    }
+
+
 # --- output -----------------------------------------------------------------------
 
 def _hidden_text(row: dict[str, Any]) -> str:
@@ -510,6 +558,15 @@ def _hidden_text(row: dict[str, Any]) -> str:
     if row["hidden"] is None:
         return "unknown"
     return "+".join(f"{h['effect']}:{h['form']}" for h in row["hidden"]) or "none"
+
+
+def _seeds(seed: int | list[int]) -> str:
+    return f"seed {seed}" if isinstance(seed, int) else "seeds " + ", ".join(map(str, seed))
+
+
+def _bag_name(row: dict[str, Any]) -> str:
+    """``bag INDEX``, or ``bag SEED:INDEX`` in runs merged (``merged``)."""
+    return f"bag {row['seed']}:{row['index']}" if "seed" in row else f"bag {row['index']}"
 
 
 def _fraction(k: int, n: int) -> str:
@@ -527,7 +584,7 @@ def format_outside(result: dict[str, Any]) -> str:
     out = result["outside"]
     n = out["bags"]
     lines = [f"diagnosis over {result['replicates']} bags from {result['source']}, each hiding one effect in no "
-             f"catalogue (seed {result['seed']}, noise x {result['noise_scale']:g}"
+             f"catalogue ({_seeds(result['seed'])}, noise x {result['noise_scale']:g}"
              + (", quick records" if result.get("quick") else "") + ")",
              f"  {'effect':<16}{'bags':>6}" + "".join(f"{o:>13}" for o in OUTSIDE_OUTCOMES)]
     for effect, counts in {**out["by_effect"], "all": out["outcomes"]}.items():
@@ -542,7 +599,7 @@ def format_outside(result: dict[str, Any]) -> str:
     for r in sorted(result["bags"], key=lambda r: -max((h["size"] for h in r["outside"]), default=0.0)):
         if r["outcome"] != "unexplained":
             h = r["outside"][0] if r["outside"] else {"effect": "?", "size": float("nan"), "signal": "?"}
-            lines.append(f"  bag {r['index']}: {h['effect']} (size {h['size']:.3g} x the {h['signal']} noise) -> "
+            lines.append(f"  {_bag_name(r)}: {h['effect']} (size {h['size']:.3g} x the {h['signal']} noise) -> "
                          f"{'+'.join(r['named']) or 'none'}: {r['outcome']}" + (f": {r['message']}" if r["message"] else ""))
     return "\n".join(lines)
 
@@ -552,7 +609,7 @@ def format_table(result: dict[str, Any]) -> str:
     if result.get("outside_catalogue"):
         return format_outside(result)
     target = 100 * result["target"]
-    lines = [f"diagnosis over {result['replicates']} bags from {result['source']} (seed {result['seed']}, noise x "
+    lines = [f"diagnosis over {result['replicates']} bags from {result['source']} ({_seeds(result['seed'])}, noise x "
              f"{result['noise_scale']:g}" + (", quick records" if result.get("quick") else "") + ")",
              "exact-set accuracy (the effects named are the hidden ones, nothing extra) by effects hidden:",
              f"  {'hidden':<10}{'bags':>6}" + "".join(f"{o:>11}" for o in OUTCOMES) + f"{'accuracy':>11}"]
@@ -583,7 +640,7 @@ def format_table(result: dict[str, Any]) -> str:
         lines.append("not exact:")
         for r in sorted(wrong, key=lambda r: -r["size_live"]):
             sizes = ", ".join(f"{h['effect']} {h['size_live']:.3g}" for h in r["hidden"] or ())
-            lines.append(f"  bag {r['index']}: {_hidden_text(r)} (readable {sizes or '0'}) -> "
+            lines.append(f"  {_bag_name(r)}: {_hidden_text(r)} (readable {sizes or '0'}) -> "
                          f"{'+'.join(r['named']) or 'none'}: {r['outcome']}"
                          + (f" [{', '.join(r['undecided'])}]" if r["undecided"] else "")
                          + (f": {r['message']}" if r["message"] else ""))
