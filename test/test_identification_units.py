@@ -828,3 +828,19 @@ def test_a_release_too_short_to_follow_keeps_the_last_frames_average():
     assert "final displacements averaged over 2 s" in est.message
     longer = cf.from_final_displacement(analytic_block_record(setup, truth, StageProfile(release_time=5.0)))
     assert "final displacements extrapolated from" in longer.message
+
+
+def test_an_isolated_spike_is_one_but_a_step_or_a_smooth_load_is_not():
+    """A reading off both neighbours alike while they agree is a spike; a step (the
+    let-go) and a smooth load at noise 0 are not (the share of the peak guards a
+    noise-free record)."""
+    from rheo_ros.identification.noise import isolated_spikes
+
+    t = np.linspace(0.0, 10.0, 501)
+    smooth = np.where(t < 6.0, 1.0 - np.exp(-t), 0.0)[:, None]   # a load, then a let-go at 6 s
+    assert not isolated_spikes(smooth, np.array([0.0])).any()
+    noisy = smooth + 0.01 * np.random.default_rng(0).standard_normal(smooth.shape)
+    noisy[100] += 0.5
+    noisy[400] -= 0.3
+    assert np.flatnonzero(isolated_spikes(noisy, np.array([0.01]))).tolist() == [100, 400]
+    assert not isolated_spikes(noisy, np.array([np.nan])).any()   # a segment whose noise is not known: none

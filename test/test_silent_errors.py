@@ -80,6 +80,37 @@ def test_a_cell_that_dies_under_load_is_left_out_from_then(tmp_path):
     assert_near_truth(report, stds=3.0, closed=0.015)
 
 
+def test_one_frame_glitches_are_left_out_and_named(tmp_path):
+    """Five readings of single cells 20 000 Pa too high, each for one frame (an electrical
+    glitch), spread over the pull, keep and release. Before: the fit right (within 0.8
+    std) but the verdict "the model misfits (P4 at 1.34 x the noise, P5 at 1.33) but no
+    effect in the catalogue explains it: an effect not yet written": a user sent to
+    write an effect for five bad readings. After: each found (its segment and stamp), left
+    out of the fit and the comparison (the closed forms read their neighbours' midpoint),
+    the model adequate, the fit as without them (measured within 0.81 std), the closed
+    form within 0.94 % (c2 +2.3 % with the spikes in). Tolerance 3 std, closed form 1.5 %."""
+    import re
+
+    import numpy as np
+    import yaml
+
+    data = g.synthesize(seed=1, profile=SHORT)
+    rng = np.random.default_rng(0)
+    frames = np.sort(rng.choice(len(data.tactile_t), 5, replace=False))
+    images = data.images.copy()
+    for f in frames:
+        images[f, rng.integers(6), rng.integers(32)] += 20000.0
+    g.write_bag(replace(data, images=images), tmp_path / "bag",
+                yaml.safe_dump(g.params_document(g.Layout(), SHORT), sort_keys=False))
+    report = analyze(tmp_path / "bag", workers=1).to_json()
+    [line] = [w for w in report["warnings"] if "isolated spikes" in w]
+    for t in data.tactile_t[frames]:
+        assert f"{t:.3f}" in line, (t, line)
+    assert sum(int(n) for n in re.findall(r"P\d: (\d+) at", line)) == 5   # nothing else
+    assert report["diagnosis"]["adequate"] and report["diagnosis"]["missing_effects"] == [], report["diagnosis"]
+    assert_near_truth(report, stds=3.0, closed=0.015)
+
+
 def test_a_cell_saturating_alone_is_found_and_its_segment_bounded(tmp_path):
     """A cell clipped at 1500 Pa while its column peaks at 5320 Pa. Before: nothing said,
     the fit's E 27.9 std low and c1 8.4 std, the closed form's E -7.4 %, c2 -6.2 %.

@@ -23,7 +23,7 @@ from rheo_ros.diagnosis.decision import Diagnosis
 from rheo_ros.diagnosis.discover import Progress, discover
 from rheo_ros.diagnosis.fits import add_effect, assess, polish
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
-from rheo_ros.identification.noise import sensor_noise
+from rheo_ros.identification.noise import sensor_noise, spikes_note
 from rheo_ros.identification.pipeline import (
     SEARCHED,
     NoClosedForm,
@@ -250,7 +250,8 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     noise = sensor_noise(record)
     t0, t1 = float(record.stage_t[0]), float(record.stage_t[-1])
     warnings = [*(n.text for n in said if n.touches(t0, t1)), *(w for w in (job.warning(),) if w),
-                *(record.sensor.warnings if record.sensor else ())]
+                *(record.sensor.warnings if record.sensor else ()),
+                *(w for w in (spikes_note(record, noise.force_spikes),) if w)]
     if job.object:
         warnings.append(f"experiment {number}: the goal said {job.object!r} object (/rheo/object): "
                         + ("modelled from rest, a new pool" if job.object == "new" else

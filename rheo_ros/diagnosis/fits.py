@@ -150,7 +150,7 @@ def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effec
     stats = current.estimate.statistics
     problem = WholeRecordProblem(record, model, stats.force_weights, stats.weights["markers"], forward=forward,
                                  live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
-                                 top=live_top(record, noise.force_std))
+                                 top=live_top(record, noise.force_std), excluded=noise.force_spikes)
     tactile, marker = current.delays
     params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}
     try:

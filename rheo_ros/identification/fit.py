@@ -17,7 +17,7 @@ from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import GAMMA_RANGE
 from rheo_ros.fe.quasistatic import Prediction, QuasiStaticFE
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.noise import Weights, sensor_noise
+from rheo_ros.identification.noise import Weights, sensor_noise, spikes_note
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record, contact_time
@@ -81,6 +81,8 @@ class WholeRecordProblem:
             force was below it). None: readings that are not live are left out.
         top: (nodes,) N: the lowest force a saturated reading (one above it) can stand
             for; a model predicting less there is penalised likewise. None: no saturation.
+        excluded: (T, nodes) readings neither live nor a bound (isolated spikes,
+            ``SensorNoise.force_spikes``); None: none.
 
     Each marker's starting position is a nuisance parameter (markers are not on the
     design grid to the micrometre): it is profiled out, residuals taken about each
@@ -98,6 +100,7 @@ class WholeRecordProblem:
     delays: bool = False
     ceiling: np.ndarray | None = None
     top: np.ndarray | None = None
+    excluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.profile = self.profile or self.record.profile()
@@ -105,6 +108,8 @@ class WholeRecordProblem:
                                          self.guard)
         self._force = self.record.force[self._use]
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
+        # The readings that bound the model: neither live nor left out.
+        self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -150,7 +155,7 @@ class WholeRecordProblem:
             over = np.maximum(p.force - self.ceiling, 0.0) / self.force_std
             if self.top is not None:   # a saturated reading: the force was at least the top
                 over = np.where(self._force > self.top, np.maximum(self.top - p.force, 0.0) / self.force_std, over)
-            parts.append(over[~self._live])
+            parts.append(over[self._bounded])
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
@@ -428,7 +433,7 @@ def fit_record(
     problem = WholeRecordProblem(
         record, model, weights.force_std if weights else scale_f, weights.marker_std if weights else 1e-5,
         forward=forward, live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
-        top=live_top(record, noise.force_std),
+        top=live_top(record, noise.force_std), excluded=noise.force_spikes,
     )
     fixed = fixed or {}
     all_names = problem.names
@@ -475,7 +480,7 @@ def fit_record(
         method="whole_record",
         equations=("eq.1/18-21 FE model, quasi-static limit", "weighted least squares over all phases"),
         covariance=cov[np.ix_(physical, physical)],
-        message=_message(stats, edge),
+        message=_message(stats, edge) + (f"; {note}" if (note := spikes_note(record, noise.force_spikes)) else ""),
         statistics=stats,
     )
 

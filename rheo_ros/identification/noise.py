@@ -13,7 +13,11 @@ import numpy as np
 from rheo_ros.record import Record
 from rheo_ros.sensors import difference_noise
 
-__all__ = ["SensorNoise", "Weights", "difference_noise", "force_noise", "sensor_noise"]
+__all__ = ["SensorNoise", "Weights", "despiked", "difference_noise", "force_noise", "isolated_spikes",
+           "sensor_noise", "spikes_note"]
+
+SPIKE_SIGMAS = 8.0    # a reading this many noise stds off the midpoint of its two neighbours ...
+SPIKE_SHARE = 0.005   # ... and this share of its segment's peak (a noise-free record), is a glitch
 
 
 @dataclass(frozen=True)
@@ -31,7 +35,10 @@ class SensorNoise:
 
     Attributes:
         force_std: (nodes,) std of each tactile segment's force (N), NaN where too few
-            live readings; force_live: (T, nodes) the live readings.
+            live readings; force_live: (T, nodes) the live readings (``force_spikes``
+            left out); force_spikes: (T, nodes) readings that are isolated spikes (None: none)
+            (``isolated_spikes``): neither live nor a bound, left out of every fit and
+            comparison.
         marker_std: std of a marker coordinate (m).
         force_samples, marker_samples: second differences each level rests on.
     """
@@ -41,6 +48,7 @@ class SensorNoise:
     marker_std: float
     force_samples: np.ndarray
     marker_samples: int
+    force_spikes: np.ndarray | None = None
 
     @property
     def known(self) -> bool:
@@ -83,8 +91,59 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return std, live, counts
 
 
+def isolated_spikes(force: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """(T, nodes): the readings of ``force`` (T, nodes) that jump off both neighbours
+    alike while the neighbours agree: further than ``SPIKE_SIGMAS`` stds of the
+    midpoint's noise (``std`` per segment; sqrt(1.5) std for white noise) and
+    ``SPIKE_SHARE`` of the segment's peak from the midpoint, the neighbours within that
+    of each other. A glitch of one frame (a cell's electrical spike); a load's step (the
+    let-go, a contact) moves the neighbours apart and a smooth load stays near the midpoint.
+    """
+    force = np.asarray(force, float)
+    spikes = np.zeros(force.shape, bool)
+    if force.shape[0] < 3:
+        return spikes
+    peak = np.abs(force).max(axis=0)
+    limit = np.maximum(SPIKE_SIGMAS * np.sqrt(1.5) * np.nan_to_num(std, nan=np.inf), SPIKE_SHARE * peak)
+    off = np.abs(force[1:-1] - 0.5 * (force[:-2] + force[2:]))
+    spikes[1:-1] = (off > limit) & (np.abs(force[2:] - force[:-2]) < limit)
+    return spikes
+
+
+def spikes_note(record: Record, spikes: np.ndarray | None) -> str:
+    """One line naming the spikes left out ("" without any): per segment, how many and
+    when (the first few)."""
+    if spikes is None:
+        return ""
+    parts = []
+    for j in np.flatnonzero(spikes.any(axis=0)):
+        t = record.force_t[spikes[:, j]]
+        when = ", ".join(f"{x:.3f}" for x in t[:3]) + (", ..." if t.size > 3 else "")
+        parts.append(f"P{j + 1}: {t.size} at {when} s")
+    if not parts:
+        return ""
+    return (f"tactile readings left out as isolated spikes (off both neighbours by over {SPIKE_SIGMAS:g} x the "
+            f"noise while they agree: a glitch of one frame, not a load): {'; '.join(parts)}")
+
+
+def despiked(record: Record) -> Record:
+    """``record`` with its isolated spikes (``sensor_noise``) replaced by the midpoint of
+    their neighbours: for the closed forms, which read the force at given instants and
+    over windows rather than reading by reading (the fit and the comparison leave the
+    spikes out instead)."""
+    spikes = sensor_noise(record).force_spikes
+    if not spikes.any():
+        return record
+    force = record.force.copy()
+    rows, cols = np.nonzero(spikes)
+    force[rows, cols] = 0.5 * (force[rows - 1, cols] + force[rows + 1, cols])
+    return replace(record, force=force)
+
+
 def sensor_noise(record: Record) -> SensorNoise:
-    """The noise of each tactile segment over its live readings, and of the markers."""
+    """The noise of each tactile segment over its live readings, and of the markers; the
+    readings that are isolated spikes are left out of the live ones."""
     std, live, counts = force_noise(record)
+    spikes = isolated_spikes(record.force, std)
     marker_std, marker_samples = difference_noise(record.markers)
-    return SensorNoise(std, live, marker_std, counts, marker_samples)
+    return SensorNoise(std, live & ~spikes, marker_std, counts, marker_samples, spikes)

@@ -26,7 +26,7 @@ from rheo_ros.identification.closed_form import (
 )
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.fit import away_from_boundaries, fit_record
-from rheo_ros.identification.noise import SensorNoise, Weights, force_noise, sensor_noise
+from rheo_ros.identification.noise import SensorNoise, Weights, despiked, force_noise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record, RecordError, contact_depth, contact_time, frames_before, frames_held
@@ -112,7 +112,7 @@ def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: i
     starts = [] if after is None else list(after.starts)
     reported = None if after is None else after.estimate
     tried = 0 if after is None else after.tried
-    record = as_fresh_push(record)
+    record = despiked(as_fresh_push(record))
     nodes = unsaturated_nodes(record)
     forms = CLOSED_FORMS[phase]
     while tried < len(forms) and len(starts) < solutions:
