@@ -36,9 +36,9 @@ class SensorNoise:
     Attributes:
         force_std: (nodes,) std of each tactile segment's force (N), NaN where too few
             live readings; force_live: (T, nodes) the live readings (``force_spikes``
-            left out); force_spikes: (T, nodes) readings that are isolated spikes (None: none)
-            (``isolated_spikes``): neither live nor a bound, left out of every fit and
-            comparison.
+            left out); force_spikes: (T, nodes) the readings that are isolated spikes
+            (``isolated_spikes``; None: none), neither live nor a bound: left out of
+            every fit and comparison.
         marker_std: std of a marker coordinate (m).
         force_samples, marker_samples: second differences each level rests on.
     """
