@@ -293,6 +293,10 @@ def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
 # integration error must sit far below that, so its parameter dependence is smooth.
 ODE_RTOL = 1e-12
 ODE_METHOD = "LSODA"   # switches to BDF where the spring grows stiff (a fit's trial of a huge k)
+# Steps a segment may take: a fit's wild trial can ask for millions at ODE_RTOL, each
+# keeping its dense-output interpolant (seen: 22 GB before the machine ran out); the
+# trial is then a failure (NaN stress: a large residual) like a diverging one.
+ODE_MAX_STEPS = 100_000
 
 
 def three_element_and_arms(element: Element) -> tuple[tuple[float, float, float], list[tuple[float, float]]]:
@@ -373,11 +377,30 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     let_go, t_release = False, None
 
     def integrate(rate: float | None, span: tuple[float, float], y0: np.ndarray, events=None):
+        calls, last, cut = 0, span[0], None
+
+        def budget(tt: float, yy: np.ndarray, _r: float | None) -> float:
+            # Positive while steps are left (called once a step, a few more per located
+            # event); then a root midway into the step that ran out, where the solver
+            # stops (continuous there, as its root finder needs).
+            nonlocal calls, last, cut
+            if cut is None:
+                calls += 1
+                if calls <= ODE_MAX_STEPS:
+                    last = tt
+                    return 1.0
+                cut = 0.5 * (last + tt)
+            return cut - tt
+        budget.terminal = True
+
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
             sol = solve_ivp(rhs, span, y0, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
-                            args=(rate,), dense_output=True, events=events)
-        return sol if sol.success and np.all(np.isfinite(sol.y[:, -1])) else None
+                            args=(rate,), dense_output=True, events=[budget, *([events] if events else [])])
+        if not sol.success or sol.t_events[0].size or not np.all(np.isfinite(sol.y[:, -1])):
+            return None   # failed, or out of steps: a trial the fit rejects, never the machine's memory
+        sol.t_events, sol.y_events = sol.t_events[1:], sol.y_events[1:]   # the caller's events as it gave them
+        return sol
 
     for i, seg in enumerate(program.segments):
         rate = seg.strain_rate
