@@ -493,15 +493,10 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
                   f"(readable {row['size_live']:.3g}), named {'+'.join(row['named']) or 'none'}: {row['outcome']}, "
                   f"{row['make_seconds']:.1f} + {row['seconds']:.1f} s"
                   + (f" ({row['message']})" if row["message"] else ""), file=sys.stderr, flush=True)
-    analysed = [r for r in rows if r["outcome"] != "failed"]
     result = {
         "source": name, "generator": generator, "replicates": replicates, "seed": seed, "quick": quick,
         "outside_catalogue": outside,
-        "noise_scale": noise_scale, **score(rows, target),
-        "seconds_median": float(np.median([r["seconds"] for r in analysed])) if analysed else None,
-        "seconds_max": float(np.max([r["seconds"] for r in analysed])) if analysed else None,
-        "make_seconds_median": float(np.median([r["make_seconds"] for r in rows])) if rows else None,
-        "total_seconds": time.perf_counter() - t_start,
+        "noise_scale": noise_scale, **score(rows, target), **_times(rows, time.perf_counter() - t_start),
         "bags": rows,
     }
     if plot:
@@ -536,18 +531,22 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
             seeds[seed] = path
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
     rows = [{"seed": r["seed"], **row} for r in runs for row in r["bags"]]
-    analysed = [row for row in rows if row["outcome"] != "failed"]
     target = default_target(first["noise_scale"]) if target is None else target
     return {
         **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
         "replicates": len(rows), "seed": list(seeds), "runs": [str(p) for p in paths],
-        **score(rows, target),
-        "seconds_median": float(np.median([row["seconds"] for row in analysed])) if analysed else None,
-        "seconds_max": float(np.max([row["seconds"] for row in analysed])) if analysed else None,
-        "make_seconds_median": float(np.median([row["make_seconds"] for row in rows])) if rows else None,
-        "total_seconds": float(sum(r["total_seconds"] for r in runs)),
+        **score(rows, target), **_times(rows, float(sum(r["total_seconds"] for r in runs))),
         "bags": rows,
     }
+
+
+def _times(rows: list[dict[str, Any]], total: float) -> dict[str, float | None]:
+    """The bench's times: analysis median and max over the bags analysed, making median."""
+    analysed = [r["seconds"] for r in rows if r["outcome"] != "failed"]
+    return {"seconds_median": float(np.median(analysed)) if analysed else None,
+            "seconds_max": float(np.max(analysed)) if analysed else None,
+            "make_seconds_median": float(np.median([r["make_seconds"] for r in rows])) if rows else None,
+            "total_seconds": total}
 
 
 # --- output -----------------------------------------------------------------------

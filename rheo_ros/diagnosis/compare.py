@@ -22,10 +22,10 @@ from scipy.stats import chi2
 
 from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.fit import away_from_boundaries
+from rheo_ros.identification.fit import steady_readings
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import Model
-from rheo_ros.record import Record, contact_time
+from rheo_ros.record import Record
 
 WINDOW_S = 1.0        # running mean over this span (s) for systematic windows
 WINDOW_SIGMAS = 4.0   # a window stands out when its mean exceeds this many of its own std
@@ -144,7 +144,7 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     profile = record.profile()
     p = forward.predict(model, gamma, profile, record.force_t - delays[0], record.marker_t - delays[1])
     # Readings at a phase boundary are mid-jump: left out, as the fit leaves them out.
-    counted = noise.force_live & away_from_boundaries(record.force_t, profile, contact_time(record))[:, None]
+    counted = noise.force_live & steady_readings(record)[:, None]
     rf = np.where(counted, p.force - record.force, np.nan)
     stats: list[ResidualStats] = []
     for j in range(rf.shape[1]):

@@ -22,8 +22,8 @@ from scipy.optimize import minimize
 from rheo_ros.diagnosis.decision import BIC_DECISIVE, misfit_cells
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PHASES
-from rheo_ros.identification.fit import away_from_boundaries
-from rheo_ros.record import Record, contact_time
+from rheo_ros.identification.fit import steady_readings
+from rheo_ros.record import Record
 from rheo_ros.sensors import difference_noise
 
 DECAY_TIMES = 40   # times a fit starts from, log-spaced from two samples to ten phase lengths
@@ -129,7 +129,7 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
     markers = [c for c in cells if c["signal"] == "markers"]
     force = [c for c in cells if c["signal"] != "markers"]   # the segments and their total
     residual = record.force.sum(axis=1) - fit.prediction_total
-    away = away_from_boundaries(record.force_t, record.profile(), contact_time(record))
+    away = steady_readings(record)
     noise = difference_noise(residual, away)[0]
     shapes = {}
     if np.isfinite(noise) and noise > 0:

@@ -185,6 +185,12 @@ def away_from_boundaries(t: np.ndarray, profile: StageProfile, contact: float,
     return np.abs(np.asarray(t)[:, None] - edges[None]).min(axis=1) >= guard
 
 
+def steady_readings(record: Record) -> np.ndarray:
+    """(T,) the record's force readings away from its phase boundaries and its contact
+    (``away_from_boundaries``): the ones a fit, a comparison or a plot of residuals counts."""
+    return away_from_boundaries(record.force_t, record.profile(), contact_time(record))
+
+
 def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
     """(nodes,) N: the largest force a reading that is not live can stand for (the
     dead band's live threshold at noise ``force_std``); None without a dead band."""

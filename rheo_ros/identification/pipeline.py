@@ -25,11 +25,11 @@ from rheo_ros.identification.closed_form import (
     lateral_strain_ratio,
 )
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
-from rheo_ros.identification.fit import away_from_boundaries, fit_record
+from rheo_ros.identification.fit import fit_record, steady_readings
 from rheo_ros.identification.noise import SensorNoise, Weights, despiked, force_noise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
-from rheo_ros.record import Record, RecordError, contact_depth, contact_time, frames_before, frames_held
+from rheo_ros.record import Record, RecordError, contact_depth, frames_before, frames_held
 
 # The closed forms a phase's data allow, best first: the first with a solution is
 # reported, the first two are the whole-record fit's starts. After release the
@@ -447,7 +447,7 @@ def force_error(record: Record, predicted: np.ndarray) -> tuple[float, dict[str,
     true value), leaving out readings within a phase boundary's guard (mid-jump there;
     the quasi-static model has jumped)."""
     profile = record.profile()
-    away = away_from_boundaries(record.force_t, profile, contact_time(record))
+    away = steady_readings(record)
     err = (record.reading(predicted).sum(axis=1) - record.force.sum(axis=1))[away]
     which = phase_of(record.force_t[away], profile)
     by_phase = {name: float(np.sqrt(np.mean(err[which == i] ** 2)))

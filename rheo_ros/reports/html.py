@@ -55,9 +55,9 @@ from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.diagnosis.remaining import describe as describe_remaining
 from rheo_ros.diagnosis.remaining import shape_curve
 from rheo_ros.experiment import PUSH_PHASES, Phase
-from rheo_ros.identification.fit import away_from_boundaries
+from rheo_ros.identification.fit import steady_readings
 from rheo_ros.io.files import write_text_atomic
-from rheo_ros.record import contact_depth, contact_time
+from rheo_ros.record import contact_depth
 
 REPORT_NAME = "report.html"
 MEASURED_COLOUR = "#333333"
@@ -246,7 +246,7 @@ def _remaining_svg(result: Analysis, rest: dict) -> str:
     record = result.record
     t = record.force_t
     residual = record.force.sum(axis=1) - result.final.prediction_total
-    steady = away_from_boundaries(t, record.profile(), contact_time(record))
+    steady = steady_readings(record)
     noise = rest["force_noise"]
     with _new_figure(9, 3.4) as fig:
         ax = fig.subplots()
@@ -464,7 +464,7 @@ def _force_svg(result: Analysis, k: int) -> str:
     # Each phase's windows, merged where they overlap (a phase's runs never do).
     windows = [(s.phase, i, a, b) for s in totals for i, (a, b) in enumerate(_merged(s.windows))]
     noise = totals[0].noise if totals else np.nan
-    steady = away_from_boundaries(t, profile, contact_time(record))
+    steady = steady_readings(record)
     with _new_figure(9, 5.0) as fig:
         top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1.2))
         _shade_phases(top, profile.phases, label=True)
