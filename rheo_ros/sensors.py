@@ -16,6 +16,9 @@ from functools import cached_property
 import numpy as np
 
 MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
+# E[max(n, 0)] of a zero-mean Gaussian n over its std (1 / sqrt(2 pi)): the most a cell's
+# reading of a pressure p >= 0 exceeds p on average, whatever its dead band (``DeadBand.floor``).
+CLIPPED_NOISE_MEAN = 0.3989422804014327
 MAD_TO_STD = 1.4826    # of a Gaussian
 LINEAR = -math.inf     # the threshold of a cell with neither a dead band nor clipping at zero
 
@@ -36,6 +39,7 @@ class DeadBand:
     # Share of a segment's cells that clip at ``saturation``: 1 for the whole array's
     # saturation, 1 / cells where one cell saturates alone (the others read on above it).
     clipping: np.ndarray | float = 1.0
+    quantum: float = 0.0   # N: one count of one cell (the ADC's step times a cell's area)
 
     def threshold(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the smallest live segment force, given each segment's noise std
@@ -49,6 +53,23 @@ class DeadBand:
         every cell (inf without saturation). A reading above it says the force was at
         least about this much."""
         return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
+
+    def floor(self, readings: np.ndarray, force_std: np.ndarray) -> np.ndarray:
+        """(T, nodes) N: the smallest segment force readings (T, nodes) that are not live
+        can stand for, three segment stds ``force_std`` (N) below what they show.
+
+        A cell reads at most its pressure plus the positive part of its noise, plus half a
+        count (a dead band or clipping only takes away), so a segment's reading exceeds its
+        force by at most ``CLIPPED_NOISE_MEAN`` cell stds per cell on average, with at most
+        the segment's std about that (x -> max(x, 0) is 1-Lipschitz). The bound holds
+        however the force spreads over the segment's cells (only tension, which reads
+        nothing, is not pressure): a reading under the dead band that is clearly above
+        zero says the force was there (a held adhesion of 430 Pa a cell under a 300 Pa
+        band), with no model of the cells' spread."""
+        std = np.asarray(force_std, float)
+        cells = np.asarray(self.cells, float)
+        bias = CLIPPED_NOISE_MEAN * np.sqrt(cells) * std + 0.5 * cells * self.quantum
+        return np.asarray(readings, float) - bias - 3.0 * std
 
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""
@@ -156,7 +177,8 @@ class TactileArray:
             j = self.segment[fault.col]
             saturation[j] = min(saturation[j], fault.value * cells[j] * self.cell_area)
             clipping[j] = 1.0 / cells[j]
-        return DeadBand(self.threshold * cells * self.cell_area, cells, saturation, clipping)
+        return DeadBand(self.threshold * cells * self.cell_area, cells, saturation, clipping,
+                        quantum=self.resolution * self.cell_area)
 
     @property
     def cells_per_segment(self) -> np.ndarray:

@@ -165,3 +165,29 @@ def test_a_push_read_only_at_saturation_is_refused_in_one_line():
                                           r"reads at its saturation \(0\.5, 1, 1, 1, 0\.5 N, P1, P2, \.\.\.\) or under "
                                           r"its dead band: the array did not measure the push's force"):
         require_readings(rec, "/tactile/pressure")
+
+
+@pytest.mark.parametrize("spread", [0.0, 0.6])
+def test_a_readings_floor_holds_however_the_force_spreads_over_the_cells(spread):
+    """``DeadBand.floor``: the least force a reading under the live threshold stands for.
+    Cells (300 Pa dead band, 100 Pa noise, 10 Pa steps) whose pressures differ by
+    ``spread`` (0.6: 60 % apart, as the generator's per-cell drift can be) around the band:
+    the floor lies above the segment's true force in at most 0.5 % of the frames (three
+    segment stds of margin: ~0.13 % for a Gaussian sum); and a force held at 430 Pa a
+    cell (a held adhesion under the band) has a floor above zero in at least 99 % of them."""
+    array = TactileArray()
+    band = array.dead_band
+    rng = np.random.default_rng(3)
+    cells = int(band.cells[2])
+    seg_std = np.sqrt(cells) * array.noise * array.cell_area   # N: the segment's noise
+    frames = 20000
+    for level in (150.0, 300.0, 430.0, 550.0):
+        pressure = level * (1.0 + spread * rng.standard_normal((1, cells))).clip(0.0)
+        noisy = pressure + array.noise * rng.standard_normal((frames, cells))
+        read = np.round(np.where(noisy < array.threshold, 0.0, noisy) / array.resolution) * array.resolution
+        reading = read.sum(axis=1) * array.cell_area
+        truth = pressure.sum() * array.cell_area
+        floor = band.floor(reading[:, None], np.array([seg_std]))[:, 0]
+        assert np.mean(floor > truth) <= 0.005, (level, np.mean(floor > truth))
+        if level == 430.0 and spread == 0.0:
+            assert np.mean(floor > 0.0) >= 0.99, np.mean(floor > 0.0)

@@ -7,10 +7,14 @@ residuals, both over the signal's noise, a whiteness test (Ljung-Box: a right mo
 leaves white residuals, a missing effect leaves a slow structure) and the time
 windows where the residuals' running mean stands out of the noise.
 
-Only live tactile readings away from the phase boundaries count (``identification.noise``): the dead band reads an
+Live tactile readings away from the phase boundaries count (``identification.noise``): the dead band reads an
 exact zero where the true force is small, and clipped noise leaves a small positive
 reading where it is zero; either would look like adhesion or drift to a comparison
-that took the readings at face value.
+that took the readings at face value. A reading that is not live counts where the
+model lies outside what it stands for (``fit.bound_excess``: above the live threshold,
+or below the force its reading shows, ``DeadBand.floor``), by that excess: a right
+model leaves such a reading about once in a thousand, a force the model misses under
+the dead band leaves them all.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from scipy.stats import chi2
 
 from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.fit import steady_readings
+from rheo_ros.identification.fit import bound_excess, bounds, steady_readings
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
@@ -144,14 +148,22 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     profile = record.profile()
     p = forward.predict(model, gamma, profile, record.force_t - delays[0], record.marker_t - delays[1])
     # Readings at a phase boundary are mid-jump: left out, as the fit leaves them out.
-    counted = noise.force_live & steady_readings(record)[:, None]
-    rf = np.where(counted, p.force - record.force, np.nan)
+    steady = steady_readings(record)[:, None]
+    live = noise.force_live & steady
+    rf = np.where(live, p.force - record.force, np.nan)
+    limits = bounds(record, noise.force_std)
+    if limits["ceiling"] is not None:
+        bounded = ~noise.force_live & steady & (True if noise.force_spikes is None else ~noise.force_spikes)
+        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], limits["floor"])
+        rf = np.where(bounded & (excess != 0.0), excess, rf)
+    counted = np.isfinite(rf)
     stats: list[ResidualStats] = []
     for j in range(rf.shape[1]):
-        live = counted[:, j]
-        if live.sum() >= 3 and np.isfinite(noise.force_std[j]):
-            stats += residual_stats(f"P{j + 1}", record.force_t[live], rf[live, j], noise.force_std[j], profile)
-    every = counted.all(axis=1) & np.all(np.isfinite(noise.force_std))
+        rows = counted[:, j]
+        if rows.sum() >= 3 and np.isfinite(noise.force_std[j]):
+            stats += residual_stats(f"P{j + 1}", record.force_t[rows], rf[rows, j], noise.force_std[j], profile)
+    # The total: readings every segment has live (a bound's excess is no reading to sum).
+    every = live.all(axis=1) & np.all(np.isfinite(noise.force_std))
     if every.sum() >= 3:
         total_noise = float(np.sqrt(np.sum(noise.force_std**2)))
         stats += residual_stats("total", record.force_t[every], rf[every].sum(axis=1), total_noise, profile)

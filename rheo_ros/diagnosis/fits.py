@@ -13,7 +13,7 @@ from rheo_ros.diagnosis.compare import Comparison, compare
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.closed_form import from_final_displacement
 from rheo_ros.identification.estimate import Estimate
-from rheo_ros.identification.fit import WholeRecordProblem, fit_record, live_ceiling, live_top, misfit_limit
+from rheo_ros.identification.fit import WholeRecordProblem, bounds, fit_record, misfit_limit
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.identification.pipeline import fit_weights, force_error
 from rheo_ros.models.effects import Effect, FitContext, Model, effect_class
@@ -149,8 +149,8 @@ def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effec
     model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
     stats = current.estimate.statistics
     problem = WholeRecordProblem(record, model, stats.force_weights, stats.weights["markers"], forward=forward,
-                                 live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
-                                 top=live_top(record, noise.force_std), excluded=noise.force_spikes)
+                                 live=noise.force_live, delays=True, **bounds(record, noise.force_std),
+                                 excluded=noise.force_spikes)
     tactile, marker = current.delays
     params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}
     try:

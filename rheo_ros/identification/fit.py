@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.differentiate import jacobian
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
@@ -81,6 +81,9 @@ class WholeRecordProblem:
             force was below it). None: readings that are not live are left out.
         top: (nodes,) N: the lowest force a saturated reading (one above it) can stand
             for; a model predicting less there is penalised likewise. None: no saturation.
+        floor: (T, nodes) N: the lowest force each reading that is not live can stand for
+            (``DeadBand.floor``): a model predicting less there is penalised by the
+            shortfall. None: no lower bound.
         excluded: (T, nodes) readings neither live nor a bound (isolated spikes,
             ``SensorNoise.force_spikes``); None: none.
 
@@ -100,6 +103,7 @@ class WholeRecordProblem:
     delays: bool = False
     ceiling: np.ndarray | None = None
     top: np.ndarray | None = None
+    floor: np.ndarray | None = None
     excluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -110,6 +114,7 @@ class WholeRecordProblem:
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         # The readings that bound the model: neither live nor left out.
         self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
+        self._floor = None if self.floor is None else self.floor[self._use]
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -152,10 +157,8 @@ class WholeRecordProblem:
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
         parts = [rf.ravel(), rm.ravel(), prior]
         if self.ceiling is not None:
-            over = np.maximum(p.force - self.ceiling, 0.0) / self.force_std
-            if self.top is not None:   # a saturated reading: the force was at least the top
-                over = np.where(self._force > self.top, np.maximum(self.top - p.force, 0.0) / self.force_std, over)
-            parts.append(over[self._bounded])
+            excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._floor)
+            parts.append((excess / self.force_std)[self._bounded])
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
@@ -196,6 +199,38 @@ def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
     dead band's live threshold at noise ``force_std``); None without a dead band."""
     band = record.dead_band
     return None if band is None else band.threshold(np.nan_to_num(force_std))
+
+
+def bounds(record: Record, force_std: np.ndarray) -> dict[str, np.ndarray | None]:
+    """What the record's readings that are not live say of the force, at noise
+    ``force_std``: ``ceiling``, ``top`` and ``floor`` of a ``WholeRecordProblem``."""
+    return {"ceiling": live_ceiling(record, force_std), "top": live_top(record, force_std),
+            "floor": live_floor(record, force_std)}
+
+
+def live_floor(record: Record, force_std: np.ndarray) -> np.ndarray | None:
+    """(T, nodes) N: the smallest force each of the record's readings that is not live
+    can stand for (``DeadBand.floor`` at noise ``force_std``; -inf where the noise is not
+    known); None without a dead band."""
+    band = record.dead_band
+    if band is None:
+        return None
+    std = np.asarray(force_std, float)
+    return np.where(np.isfinite(std), band.floor(record.force, np.nan_to_num(std)), -np.inf)
+
+
+def bound_excess(force: np.ndarray, readings: np.ndarray, ceiling: np.ndarray, top: np.ndarray | None,
+                 floor: np.ndarray | None) -> np.ndarray:
+    """(T, nodes) N: how far model forces lie outside what readings that are not live
+    stand for: above the ``ceiling`` (positive), below a saturated reading's ``top`` or a
+    reading's ``floor`` (negative; tension reads nothing, so a model's pull counts as
+    zero force against the floor); 0 within them."""
+    excess = np.maximum(force - ceiling, 0.0)
+    if floor is not None:
+        excess = excess + np.minimum(np.maximum(force, 0.0) - floor, 0.0)
+    if top is not None:   # a saturated reading: the force was at least the top
+        excess = np.where(readings > top, np.minimum(force - top, 0.0), excess)
+    return excess
 
 
 def live_top(record: Record, force_std: np.ndarray) -> np.ndarray | None:
@@ -353,6 +388,34 @@ def _covariance(sol, pmap: ParameterMap, chi2: float) -> tuple[np.ndarray, np.nd
     return cov_x, loose
 
 
+def _held_by_bounds(residuals, x: np.ndarray, i: int, cost: float) -> tuple[float, float] | None:
+    """The middle and half width of the range of searched parameter ``i`` over which the
+    cost stays within 1 of ``cost`` (one std), the others held at ``x``; None when it does
+    not rise on both sides within the search (a parameter the data do not bound).
+
+    A parameter only readings that are not live inform (a held adhesion under the dead
+    band: each reading bounds the force from above and below, ``DeadBand.floor``) leaves
+    the cost flat between the bounds and no slope at the fit: its least-squares std is
+    infinite, while the data do hold it in a range. The range's middle is its value, as
+    good as any inside it, and half its width its std."""
+    def rise(v: float) -> float:
+        trial = x.copy()
+        trial[i] = v
+        r = residuals(trial)
+        return float(r @ r) - cost - 1.0
+
+    ends = []
+    for sign in (-1.0, 1.0):
+        step = 0.01
+        while step <= 2.0 * SEARCH_LIMIT and rise(x[i] + sign * step) <= 0.0:
+            step *= 2.0
+        if step > 2.0 * SEARCH_LIMIT:
+            return None
+        inner = x[i] + sign * step / 2.0 if step > 0.01 else x[i]
+        ends.append(brentq(rise, inner, x[i] + sign * step, xtol=1e-3))
+    return 0.5 * (ends[0] + ends[1]), 0.5 * (ends[1] - ends[0])
+
+
 def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], at_fit: np.ndarray, sol,
                         loose: np.ndarray, slope: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """The distance to the continuum as a systematic std per searched parameter: the
@@ -438,8 +501,8 @@ def fit_record(
     noise = sensor_noise(record)
     problem = WholeRecordProblem(
         record, model, weights.force_std if weights else scale_f, weights.marker_std if weights else 1e-5,
-        forward=forward, live=noise.force_live, delays=True, ceiling=live_ceiling(record, noise.force_std),
-        top=live_top(record, noise.force_std), excluded=noise.force_spikes,
+        forward=forward, live=noise.force_live, delays=True, **bounds(record, noise.force_std),
+        excluded=noise.force_spikes,
     )
     fixed = fixed or {}
     all_names = problem.names
@@ -464,6 +527,12 @@ def fit_record(
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
+    if problem.ceiling is not None and problem.floor is not None:
+        for i in np.flatnonzero(loose & ~pmap.at_edge(sol.x)):
+            held = _held_by_bounds(residuals, sol.x, i, cost)
+            if held is not None:   # the interval's middle, its half width as the std
+                sol.x[i], cov_x[i, i], loose[i] = held[0], held[1] ** 2, False
+        params = unpack(sol.x)
     slope = pmap.slope(sol.x)
     cov = np.zeros((len(all_names), len(all_names)))
     free = np.array([all_names.index(n) for n in names])
