@@ -6,9 +6,11 @@ each boundary at and beside it. Fast (a few seconds in all): mutation testing ru
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.ndimage import median_filter
 from scipy.optimize import least_squares
 
 from rheo_ros.config.tuning import EstimatorConfig
@@ -24,7 +26,14 @@ from rheo_ros.identification.fit import (
     fit_record,
     misfit_limit,
 )
-from rheo_ros.identification.noise import SensorNoise, Weights, difference_noise, force_noise, sensor_noise
+from rheo_ros.identification.noise import (
+    LIVE_WINDOW,
+    SensorNoise,
+    Weights,
+    difference_noise,
+    force_noise,
+    sensor_noise,
+)
 from rheo_ros.record import RecordError
 
 # ---------------------------------------------------------------- synthetic force curves
@@ -730,8 +739,34 @@ def test_force_noise_counts_only_live_readings(short_case):
     assert not live.all() and live.any()
     assert np.all((counts > 10) & (counts < rec.force.shape[0] - 2))
     assert np.all((std > 0.0005) & (std < 0.004))
-    # Live where the reading clears the threshold the noise found sets.
-    np.testing.assert_array_equal(live, band.live(rec.force, std))
+    # Live where the readings' running median clears the threshold the noise found sets
+    # (``LIVE_WINDOW`` frames: not the reading's own noise, which would keep those it lifted).
+    smooth = median_filter(rec.force, size=(LIVE_WINDOW, 1), mode="nearest")
+    np.testing.assert_array_equal(live, band.live(smooth, std))
+    assert not np.array_equal(live, band.live(rec.force, std))
+
+
+def test_readings_live_by_their_running_median_are_not_those_the_noise_lifted():
+    """A segment whose force swings slowly about the live threshold (+-2 noise stds, a
+    drift settling through it): live by its own reading, the readings kept are those the
+    noise lifted, their mean 0.38 std above the force; live by the running median, what is
+    kept is as often below the force as above it (measured 0.02 std)."""
+    from rheo_ros.sensors import DeadBand
+
+    rng = np.random.default_rng(5)
+    std = 0.01
+    band = DeadBand(force=np.array([0.2]), cells=np.array([1.0]))
+    level = float(band.threshold(np.array([std]))[0])
+    t = np.arange(20000) * 0.02
+    # A slow swing about the threshold (a drift settling through it), then the noise.
+    force = level + 2 * std * np.sin(2 * np.pi * t / 40.0)
+    readings = (force + std * rng.standard_normal(t.size))[:, None]
+    rec = SimpleNamespace(force=readings, dead_band=band)
+    _, live, _ = force_noise(rec)
+    bias_median = float(np.mean((readings[:, 0] - force)[live[:, 0]])) / std
+    own = band.live(readings, np.array([std]))[:, 0]
+    bias_own = float(np.mean((readings[:, 0] - force)[own])) / std
+    assert abs(bias_median) < 0.1 and bias_own > 0.3, (bias_median, bias_own)
 
 
 def test_estimate_std_and_relative_errors():

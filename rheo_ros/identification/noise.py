@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.ndimage import median_filter
 
 from rheo_ros.record import Record
 from rheo_ros.sensors import difference_noise
@@ -16,6 +17,11 @@ from rheo_ros.sensors import difference_noise
 __all__ = ["SensorNoise", "Weights", "despiked", "difference_noise", "force_noise", "isolated_spikes",
            "sensor_noise", "spikes_note"]
 
+# A reading is live when the running median of its segment's readings over this many frames
+# is in the live range, not the reading itself: chosen by its own noise, the readings kept
+# near the live threshold would be those the noise lifted (a drift settling through the
+# threshold of a sensor with no dead band came out 46 s against 60).
+LIVE_WINDOW = 25
 SPIKE_SIGMAS = 8.0    # a reading this many noise stds off the midpoint of its two neighbours ...
 SPIKE_SHARE = 0.005   # ... and this share of its segment's peak (a noise-free record), is a glitch
 
@@ -87,7 +93,8 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         for j in range(nodes):
             std[j], counts[j] = difference_noise(force[:, j], live[:, j])
         if band is not None:
-            live = band.live(force, np.nan_to_num(std, nan=0.0))
+            live = band.live(median_filter(force, size=(LIVE_WINDOW, 1), mode="nearest"),
+                             np.nan_to_num(std, nan=0.0))
     return std, live, counts
 
 

@@ -17,7 +17,7 @@ from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.special import chdtri, ndtri
 
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 
@@ -157,9 +157,9 @@ def pool_experiments(estimates: Sequence[Estimate], names: tuple[str, ...] = BAS
                 gap = values[both] - pool.values[both]
                 joint = cov_k + pool.covariance[np.ix_(both, both)]
                 distance = float(gap @ np.linalg.solve(joint, gap))
-                limit = float(chi2.isf(level, int(both.sum())))
+                limit = float(chdtri(int(both.sum()), level))   # chi2.isf
                 z = gap / np.sqrt(np.diag(joint))
-                cut = float(norm.isf(level / (2 * both.sum())))
+                cut = float(-ndtri(level / (2 * both.sum())))   # norm.isf
                 moved = {str(n): float(s) for n, s in zip(np.array(names)[both], z) if abs(s) > cut}
             if stated or distance > limit:
                 changes.append(Change(number, distance, limit, moved, stated))

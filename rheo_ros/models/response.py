@@ -21,7 +21,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import signal
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq
@@ -116,7 +115,11 @@ class StateSpace:
             num, den = num[:-1], den[:-1]
         if num.size > den.size:
             raise ValueError("modulus grows faster than a dashpot: not a spring-dashpot network")
-        A, B, C, D = signal.tf2ss(num, den)
+        # scipy.signal costs ~1 s to import (its array-API wrappers): only where a model is
+        # solved, not in every process that imports the package (the stage, the recorder).
+        from scipy.signal import tf2ss
+
+        A, B, C, D = tf2ss(num, den)
         return cls(A, B[:, 0], C[0], float(D[0, 0]))
 
 
