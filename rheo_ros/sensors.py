@@ -17,7 +17,7 @@ import numpy as np
 
 MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
 # E[max(n, 0)] of a zero-mean Gaussian n over its std (1 / sqrt(2 pi)): the most a cell's
-# reading of a pressure p >= 0 exceeds p on average, whatever its dead band (``DeadBand.floor``).
+# reading of a pressure p >= 0 exceeds p on average, whatever its dead band (``DeadBand.excess``).
 CLIPPED_NOISE_MEAN = 0.3989422804014327
 MAD_TO_STD = 1.4826    # of a Gaussian
 LINEAR = -math.inf     # the threshold of a cell with neither a dead band nor clipping at zero
@@ -54,22 +54,26 @@ class DeadBand:
         least about this much."""
         return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
 
-    def floor(self, readings: np.ndarray, force_std: np.ndarray) -> np.ndarray:
-        """(T, nodes) N: the smallest segment force readings (T, nodes) that are not live
-        can stand for, three segment stds ``force_std`` (N) below what they show.
-
-        A cell reads at most its pressure plus the positive part of its noise, plus half a
-        count (a dead band or clipping only takes away), so a segment's reading exceeds its
-        force by at most ``CLIPPED_NOISE_MEAN`` cell stds per cell on average, with at most
-        the segment's std about that (x -> max(x, 0) is 1-Lipschitz). The bound holds
-        however the force spreads over the segment's cells (only tension, which reads
-        nothing, is not pressure): a reading under the dead band that is clearly above
-        zero says the force was there (a held adhesion of 430 Pa a cell under a 300 Pa
-        band), with no model of the cells' spread."""
-        std = np.asarray(force_std, float)
+    def excess(self, force_std: np.ndarray) -> np.ndarray:
+        """(nodes,) N: the most a segment's reading exceeds its force on average, given
+        each segment's noise std (N): ``CLIPPED_NOISE_MEAN`` cell stds per cell plus half a
+        count. A cell reads at most its pressure plus the positive part of its noise, plus
+        half a count (a dead band or clipping only takes away), and x -> max(x, 0) is
+        1-Lipschitz, so the reading less this is at most the force plus zero-mean noise of
+        at most the segment's std: however the force spreads over the cells (only tension,
+        which reads nothing, is not pressure). A reading under the dead band that is
+        clearly above zero says the force was there (``fit.ReadingWindows``)."""
         cells = np.asarray(self.cells, float)
-        bias = CLIPPED_NOISE_MEAN * np.sqrt(cells) * std + 0.5 * cells * self.quantum
-        return np.asarray(readings, float) - bias - 3.0 * std
+        return CLIPPED_NOISE_MEAN * np.sqrt(cells) * np.asarray(force_std, float) + 0.5 * cells * self.quantum
+
+    @property
+    def deficit(self) -> np.ndarray:
+        """(nodes,) N: the most a segment's reading falls short of its force plus noise:
+        the threshold in every cell (a cell under it reads zero) and half a count. So the
+        mean of readings plus this is at least the mean force, less three stds of noise
+        (``fit.ReadingWindows``): with no dead band (the noise clipped at zero) the readings
+        bound the force from both sides."""
+        return np.asarray(self.force, float) + 0.5 * np.asarray(self.cells, float) * self.quantum
 
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""

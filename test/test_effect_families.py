@@ -173,7 +173,7 @@ def test_adhesion_that_fades_keeps_the_fading_form(analysed):
 
 
 def test_a_held_adhesion_under_the_dead_band_is_named_with_its_size(analysed):
-    """Readings under the live threshold bound the force from below too (``DeadBand.floor``):
+    """Readings under the live threshold bound the force from below too (``fit.ReadingWindows``):
     a layer held at 430 Pa a cell after release, all of it under the live threshold, is
     named adhesion/held (before: "adequate", the release's readings only an upper bound),
     and its fraction of the let-go force, which only those bounds hold (the middle of the

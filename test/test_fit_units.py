@@ -634,7 +634,7 @@ def test_a_model_above_the_dead_band_where_nothing_was_read_pays_for_it(rec):
     est = fit_record(dead, start(), weights=WEIGHTS, fixed=strong, discretisation=False)
     st = est.statistics
     params = {**est.params, "tactile_delay": st.delay("tactile"), "marker_delay": st.delay("marker")}
-    censored = problem(dead, live=noise.force_live, ceiling=F.live_ceiling(dead, noise.force_std))
+    censored = problem(dead, live=noise.force_live, **F.bounds(dead, noise.force_std))
     uncensored = problem(dead, live=noise.force_live)
     assert st.cost == pytest.approx(float(np.sum(censored.residuals(params) ** 2)), rel=1e-9)
     assert st.cost > float(np.sum(uncensored.residuals(params) ** 2)) + 1e3

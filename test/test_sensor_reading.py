@@ -169,25 +169,40 @@ def test_a_push_read_only_at_saturation_is_refused_in_one_line():
 
 @pytest.mark.parametrize("spread", [0.0, 0.6])
 def test_a_readings_floor_holds_however_the_force_spreads_over_the_cells(spread):
-    """``DeadBand.floor``: the least force a reading under the live threshold stands for.
-    Cells (300 Pa dead band, 100 Pa noise, 10 Pa steps) whose pressures differ by
-    ``spread`` (0.6: 60 % apart, as the generator's per-cell drift can be) around the band:
-    the floor lies above the segment's true force in at most 0.5 % of the frames (three
-    segment stds of margin: ~0.13 % for a Gaussian sum); and a force held at 430 Pa a
-    cell (a held adhesion under the band) has a floor above zero in at least 99 % of them."""
-    array = TactileArray()
-    band = array.dead_band
+    """``fit.ReadingWindows``: the least and the most mean force a window of readings under
+    the live threshold stands for (``DeadBand.excess``, ``DeadBand.deficit``). Cells (300 Pa dead band, 100 Pa noise, 10 Pa
+    steps) whose pressures differ by ``spread`` (0.6: 60 % apart, as the generator's
+    per-cell drift can be) around the band: the floor lies above the segment's true force
+    in at most 0.5 % of the windows (three stds of margin: ~0.13 % for a Gaussian mean;
+    measured 0 of 800 at each level); a force held at 300 Pa a cell (a held adhesion at
+    the band) has every window's floor above zero; and with no dead band (noise 200 Pa
+    clipped at zero) a force of 100 Pa a cell, under each reading's bound, has 99 % of the
+    windows' floors above zero."""
+    from rheo_ros.identification.fit import FLOOR_WINDOW, ReadingWindows
+
     rng = np.random.default_rng(3)
-    cells = int(band.cells[2])
-    seg_std = np.sqrt(cells) * array.noise * array.cell_area   # N: the segment's noise
-    frames = 20000
-    for level in (150.0, 300.0, 430.0, 550.0):
+    frames = 800 * FLOOR_WINDOW
+    for array, level in [(TactileArray(), level) for level in (150.0, 300.0, 430.0, 550.0)] + \
+            [(TactileArray(noise=200.0, threshold=0.0, resolution=0.0), 100.0)]:
+        band = array.dead_band
+        cells = int(band.cells[2])
+        seg_std = np.sqrt(cells) * array.noise * array.cell_area   # N: the segment's noise
         pressure = level * (1.0 + spread * rng.standard_normal((1, cells))).clip(0.0)
         noisy = pressure + array.noise * rng.standard_normal((frames, cells))
-        read = np.round(np.where(noisy < array.threshold, 0.0, noisy) / array.resolution) * array.resolution
-        reading = read.sum(axis=1) * array.cell_area
+        read = np.where(noisy < max(array.threshold, 0.0), 0.0, noisy)
+        if array.resolution:
+            read = np.round(read / array.resolution) * array.resolution
+        reading = np.zeros((frames, array.nodes))
+        reading[:, 2] = read.sum(axis=1) * array.cell_area
+        bounded = np.zeros(reading.shape, bool)
+        bounded[:, 2] = True
         truth = pressure.sum() * array.cell_area
-        floor = band.floor(reading[:, None], np.array([seg_std]))[:, 0]
-        assert np.mean(floor > truth) <= 0.005, (level, np.mean(floor > truth))
-        if level == 430.0 and spread == 0.0:
+        std = np.full(array.nodes, seg_std)
+        windows = ReadingWindows(band, reading, bounded, std)
+        floor, ceiling = windows.floor, windows.ceiling
+        assert floor.size == 800 and np.mean(floor > truth) <= 0.005, (level, np.mean(floor > truth))
+        assert np.mean(ceiling < truth) <= 0.005, (level, np.mean(ceiling < truth))
+        if level == 300.0:
+            assert np.all(floor > 0.0)
+        if array.threshold == 0.0 and spread == 0.0:
             assert np.mean(floor > 0.0) >= 0.99, np.mean(floor > 0.0)

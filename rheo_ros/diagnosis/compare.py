@@ -12,7 +12,7 @@ exact zero where the true force is small, and clipped noise leaves a small posit
 reading where it is zero; either would look like adhesion or drift to a comparison
 that took the readings at face value. A reading that is not live counts where the
 model lies outside what it stands for (``fit.bound_excess``: above the live threshold,
-or below the force its reading shows, ``DeadBand.floor``), by that excess: a right
+or below the force its window of readings shows, ``fit.ReadingWindows``), by that excess: a right
 model leaves such a reading about once in a thousand, a force the model misses under
 the dead band leaves them all.
 """
@@ -26,7 +26,7 @@ from scipy.special import chdtrc
 
 from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.fit import bound_excess, bounds, steady_readings
+from rheo_ros.identification.fit import ReadingWindows, bound_excess, bounds, steady_readings
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
@@ -154,7 +154,8 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     limits = bounds(record, noise.force_std)
     if limits["ceiling"] is not None:
         bounded = ~noise.force_live & steady & (True if noise.force_spikes is None else ~noise.force_spikes)
-        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], limits["floor"])
+        floor = ReadingWindows(record.dead_band, record.force, bounded, limits["floor_std"])
+        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], floor)
         rf = np.where(bounded & (excess != 0.0), excess, rf)
     counted = np.isfinite(rf)
     stats: list[ResidualStats] = []

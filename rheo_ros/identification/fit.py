@@ -21,6 +21,7 @@ from rheo_ros.identification.noise import Weights, sensor_noise, spikes_note
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record, contact_time
+from rheo_ros.sensors import DeadBand
 
 SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
 # The streams' clock offsets against the stage's (s, positive: stamped late). Beyond
@@ -51,6 +52,9 @@ DISCRETISATION_RATIO = 0.37
 # calibration`: up to 1.06 on ~3000 live readings, 1.17 on a shallow push's few hundred.
 MISFIT_RATIO = 1.25
 MISFIT_SIGMAS = 5.0
+# Readings under the live threshold averaged into one pair of bounds (``ReadingWindows``): the
+# live rule's window, half a second at 50 Hz.
+FLOOR_WINDOW = 25
 OVERFLOW_RESIDUAL = 1e6   # noise stds: a residual of a model whose forces overflowed
 
 
@@ -81,9 +85,9 @@ class WholeRecordProblem:
             force was below it). None: readings that are not live are left out.
         top: (nodes,) N: the lowest force a saturated reading (one above it) can stand
             for; a model predicting less there is penalised likewise. None: no saturation.
-        floor: (T, nodes) N: the lowest force each reading that is not live can stand for
-            (``DeadBand.floor``): a model predicting less there is penalised by the
-            shortfall. None: no lower bound.
+        floor_std: (nodes,) N: the sensor noise by which windows of readings that are not
+            live bound the mean force from both sides (``ReadingWindows``): a model outside
+            is penalised by the excess. None: no such bound.
         excluded: (T, nodes) readings neither live nor a bound (isolated spikes,
             ``SensorNoise.force_spikes``); None: none.
 
@@ -103,7 +107,7 @@ class WholeRecordProblem:
     delays: bool = False
     ceiling: np.ndarray | None = None
     top: np.ndarray | None = None
-    floor: np.ndarray | None = None
+    floor_std: np.ndarray | None = None
     excluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -114,7 +118,9 @@ class WholeRecordProblem:
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
         # The readings that bound the model: neither live nor left out.
         self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
-        self._floor = None if self.floor is None else self.floor[self._use]
+        band = self.record.dead_band
+        self._floor = (None if self.floor_std is None or band is None else
+                       ReadingWindows(band, self._force, self._bounded, self.floor_std))
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -203,31 +209,69 @@ def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
 
 def bounds(record: Record, force_std: np.ndarray) -> dict[str, np.ndarray | None]:
     """What the record's readings that are not live say of the force, at noise
-    ``force_std``: ``ceiling``, ``top`` and ``floor`` of a ``WholeRecordProblem``."""
+    ``force_std``: ``ceiling``, ``top`` and ``floor_std`` of a ``WholeRecordProblem``."""
     return {"ceiling": live_ceiling(record, force_std), "top": live_top(record, force_std),
-            "floor": live_floor(record, force_std)}
+            "floor_std": None if record.dead_band is None else np.asarray(force_std, float)}
 
 
-def live_floor(record: Record, force_std: np.ndarray) -> np.ndarray | None:
-    """(T, nodes) N: the smallest force each of the record's readings that is not live
-    can stand for (``DeadBand.floor`` at noise ``force_std``; -inf where the noise is not
-    known); None without a dead band."""
-    band = record.dead_band
-    if band is None:
-        return None
-    std = np.asarray(force_std, float)
-    return np.where(np.isfinite(std), band.floor(record.force, np.nan_to_num(std)), -np.inf)
+class ReadingWindows:
+    """What readings under the live threshold say of the force: in windows of
+    ``FLOOR_WINDOW`` of a segment's such readings in a row, the mean force lies within
+    three stds of the window's mean reading, less the most a reading exceeds its force
+    (``DeadBand.excess``: the clipped noise) and plus the most it falls short of it
+    (``DeadBand.deficit``: the dead band). Means, not each reading: a held adhesion of 100
+    Pa a cell under 600 Pa of live threshold and 200 Pa of noise is inside any one
+    reading's bounds but not a window's. A saturated reading has its own bound (the top)
+    and is in no window.
+
+    Args:
+        band: the dead band; readings: (T, nodes) N; bounded: (T, nodes) the readings
+            that bound the force (not live, not left out); force_std: (nodes,) N, the
+            sensor noise (a segment whose noise is not known has no window).
+    """
+
+    def __init__(self, band: DeadBand, readings: np.ndarray, bounded: np.ndarray, force_std: np.ndarray) -> None:
+        std = np.asarray(force_std, float)
+        std0 = np.nan_to_num(std)
+        use = bounded & (readings <= band.top(std0)) & np.isfinite(std)[None]
+        seg, self._t = np.nonzero(use.T)   # by segment, then in time
+        nodes = readings.shape[1]
+        first = np.searchsorted(seg, np.arange(nodes))
+        windows = -(-np.bincount(seg, minlength=nodes) // FLOOR_WINDOW)
+        self._label = (np.concatenate([[0], np.cumsum(windows)[:-1]])[seg]
+                       + (np.arange(seg.size) - first[seg]) // FLOOR_WINDOW)
+        self._seg, self.shape = seg, readings.shape
+        self._size = np.bincount(self._label).astype(float)
+        window_seg = np.zeros(self._size.size, int)
+        window_seg[self._label] = seg
+        mean = np.bincount(self._label, weights=readings[self._t, seg]) / np.maximum(self._size, 1.0)
+        margin = 3.0 * std0[window_seg] / np.sqrt(np.maximum(self._size, 1.0))
+        self.floor = mean - band.excess(std0)[window_seg] - margin
+        self.ceiling = mean + band.deficit[window_seg] + margin
+
+    def excess(self, force: np.ndarray) -> np.ndarray:
+        """(T, nodes) N: at each reading in a window, how far the window's mean model force
+        lies above its ceiling (positive) or below its floor (negative); 0 within them and
+        at the other readings. Against the floor a model's pull counts as zero force
+        (tension reads nothing)."""
+        out = np.zeros(self.shape)
+        if self._t.size:
+            f = force[self._t, self._seg]
+            mean = np.bincount(self._label, weights=f) / self._size
+            pressing = np.bincount(self._label, weights=np.maximum(f, 0.0)) / self._size
+            out[self._t, self._seg] = (np.maximum(mean - self.ceiling, 0.0)
+                                       + np.minimum(pressing - self.floor, 0.0))[self._label]
+        return out
 
 
 def bound_excess(force: np.ndarray, readings: np.ndarray, ceiling: np.ndarray, top: np.ndarray | None,
-                 floor: np.ndarray | None) -> np.ndarray:
+                 windows: ReadingWindows | None) -> np.ndarray:
     """(T, nodes) N: how far model forces lie outside what readings that are not live
-    stand for: above the ``ceiling`` (positive), below a saturated reading's ``top`` or a
-    reading's ``floor`` (negative; tension reads nothing, so a model's pull counts as
-    zero force against the floor); 0 within them."""
+    stand for: above the ``ceiling`` (positive), below a saturated reading's ``top``
+    (negative), outside their window's range (``ReadingWindows.excess``); 0 within them."""
     excess = np.maximum(force - ceiling, 0.0)
-    if floor is not None:
-        excess = excess + np.minimum(np.maximum(force, 0.0) - floor, 0.0)
+    if windows is not None:
+        excess = excess + windows.excess(force)
     if top is not None:   # a saturated reading: the force was at least the top
         excess = np.where(readings > top, np.minimum(force - top, 0.0), excess)
     return excess
@@ -394,7 +438,7 @@ def _held_by_bounds(residuals, x: np.ndarray, i: int, cost: float) -> tuple[floa
     not rise on both sides within the search (a parameter the data do not bound).
 
     A parameter only readings that are not live inform (a held adhesion under the dead
-    band: each reading bounds the force from above and below, ``DeadBand.floor``) leaves
+    band: windows of readings bound the force from above and below, ``ReadingWindows``) leaves
     the cost flat between the bounds and no slope at the fit: its least-squares std is
     infinite, while the data do hold it in a range. The range's middle is its value, as
     good as any inside it, and half its width its std."""
@@ -527,10 +571,17 @@ def fit_record(
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
-    if problem.ceiling is not None and problem.floor is not None:
-        for i in np.flatnonzero(loose & ~pmap.at_edge(sol.x)):
+    if problem.ceiling is not None and problem.floor_std is not None:
+        # A parameter no live reading and no marker moves is held by the bounds alone: a
+        # hinge barely active at the fit gives it a slope, and a std, that say nothing.
+        column = np.linalg.norm(sol.jac, axis=0)
+        measured = np.linalg.norm(sol.jac[:problem.samples], axis=0)
+        for i in np.flatnonzero(~pmap.at_edge(sol.x) & (measured <= 1e-9 * column)):
             held = _held_by_bounds(residuals, sol.x, i, cost)
-            if held is not None:   # the interval's middle, its half width as the std
+            cov_x[i, :] = cov_x[:, i] = 0.0
+            if held is None:
+                loose[i] = True
+            else:   # the range's middle, its half width as the std
                 sol.x[i], cov_x[i, i], loose[i] = held[0], held[1] ** 2, False
         params = unpack(sol.x)
     slope = pmap.slope(sol.x)
