@@ -76,7 +76,7 @@ def analysed(tmp_path_factory) -> dict:
     for effect, candidates in (("sensor_drift", DRIFT_RIVALS), ("relaxation_branch", ["relaxation_branch"]),
                                ("adhesion", ["adhesion"]), ("strain_stiffening", ["strain_stiffening"]),
                                ("column_drift", ["sensor_drift"]), ("held_adhesion", ["adhesion", "sensor_drift"]),
-                               ("drift_no_dead_band", DRIFT_RIVALS)):
+                               ("sensor_drift_no_dead_band", DRIFT_RIVALS)):
         sensor = "no_dead_band" if effect.endswith("no_dead_band") else "default_like"
         bag = generate(folder / effect, effects=EFFECTS.get(effect.removesuffix("_no_dead_band"), OWN.get(effect)),
                        sensor=sensor, seed=1)
@@ -140,7 +140,7 @@ def test_a_settling_drift_with_no_dead_band_is_named_with_its_parameters(analyse
     std left: clipping at zero lifts a cell's mean by up to 0.4 of its std where it is
     near zero (cells 25 % apart within a segment), which a live segment's reading still
     carries."""
-    result, truth = analysed["drift_no_dead_band"]
+    result, truth = analysed["sensor_drift_no_dead_band"]
     diagnosis, final = result["diagnosis"], result["models"][-1]
     assert diagnosis["missing_effects"] == ["sensor_drift"] and diagnosis["adequate"], diagnosis["evidence"]
     assert final["forms"] == {"sensor_drift": "settling_per_segment"}
