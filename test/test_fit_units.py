@@ -724,3 +724,32 @@ def test_a_model_whose_forces_overflow_gets_large_residuals_not_nan_or_zero():
         r = prob.residuals(TRUTH)
         assert np.all(np.isfinite(r))
         assert np.sum(np.abs(r) == OVERFLOW_RESIDUAL) > 0
+
+
+def test_reading_windows_put_each_windows_excess_at_its_readings():
+    """``ReadingWindows``: a segment's readings that are not live, 25 at a time in time
+    order (a short last window), bound the window's mean force; a model below the floor
+    has the shortfall at every reading of that window, above the ceiling the excess, and a
+    model's pull counts as zero force against the floor (tension reads nothing)."""
+    from rheo_ros.sensors import DeadBand
+
+    band = DeadBand(force=np.array([1.0, 1.0]), cells=np.array([4.0, 4.0]))
+    readings = np.zeros((60, 2))
+    readings[:, 0] = 2.0                                   # 2 N read under a 1 N dead band ...
+    bounded = np.ones((60, 2), bool)
+    bounded[:10, 1] = False                                # ... segment 2: 50 readings, two windows
+    std = np.array([0.1, 0.1])
+    w = F.ReadingWindows(band, readings, bounded, std)
+    assert w.floor.size == 3 + 2                           # 25 + 25 + 10, then 25 + 25
+    margin_full, margin_short = 3 * 0.1 / 5, 3 * 0.1 / np.sqrt(10)
+    excess = band.excess(std)[0]
+    np.testing.assert_allclose(w.floor[:3], 2.0 - excess - [margin_full, margin_full, margin_short])
+    np.testing.assert_allclose(w.ceiling[:3], 2.0 + 1.0 + np.array([margin_full, margin_full, margin_short]))
+    force = np.zeros((60, 2))
+    force[:25, 0] = -5.0                                    # a pull: zero force against the floor
+    force[25:50, 0] = 10.0                                  # above the ceiling
+    out = w.excess(force)
+    np.testing.assert_allclose(out[:25, 0], -w.floor[0])
+    np.testing.assert_allclose(out[25:50, 0], 10.0 - w.ceiling[1])
+    np.testing.assert_allclose(out[50:, 0], -w.floor[2])
+    assert np.all(out[:, 1] == 0.0)                         # readings of nothing: a model of none is within
