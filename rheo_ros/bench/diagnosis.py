@@ -560,7 +560,8 @@ def _hidden_text(row: dict[str, Any]) -> str:
 
 
 def _seeds(seed: int | list[int]) -> str:
-    return f"seed {seed}" if isinstance(seed, int) else "seeds " + ", ".join(map(str, seed))
+    seeds = [seed] if isinstance(seed, int) else list(seed)
+    return ("seed " if len(seeds) == 1 else "seeds ") + ", ".join(map(str, seeds))
 
 
 def _bag_name(row: dict[str, Any]) -> str:
