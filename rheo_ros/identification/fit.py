@@ -576,13 +576,16 @@ def fit_record(
         # hinge barely active at the fit gives it a slope, and a std, that say nothing.
         column = np.linalg.norm(sol.jac, axis=0)
         measured = np.linalg.norm(sol.jac[:problem.samples], axis=0)
-        for i in np.flatnonzero(~pmap.at_edge(sol.x) & (measured <= 1e-9 * column)):
-            held = _held_by_bounds(residuals, sol.x, i, cost)
+        only = np.flatnonzero(~pmap.at_edge(sol.x) & (measured <= 1e-9 * column))
+        ranges = [_held_by_bounds(residuals, sol.x, i, cost) for i in only]
+        for i in only:
             cov_x[i, :] = cov_x[:, i] = 0.0
-            if held is None:
-                loose[i] = True
-            else:   # the range's middle, its half width as the std
-                sol.x[i], cov_x[i, i], loose[i] = held[0], held[1] ** 2, False
+        loose[only] = True
+        # Each range holds the others where they are: one the bounds leave open (adhesion
+        # on a clean record: no fraction too small) leaves the others' ranges meaningless.
+        if ranges and all(r is not None for r in ranges):
+            for i, (middle, half_width) in zip(only, ranges):   # the middle, half the width as std
+                sol.x[i], cov_x[i, i], loose[i] = middle, half_width**2, False
         params = unpack(sol.x)
     slope = pmap.slope(sol.x)
     cov = np.zeros((len(all_names), len(all_names)))
