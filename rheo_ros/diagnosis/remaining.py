@@ -22,7 +22,8 @@ from scipy.optimize import minimize
 from rheo_ros.diagnosis.decision import BIC_DECISIVE, misfit_cells
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PHASES
-from rheo_ros.identification.fit import steady_readings
+from rheo_ros.identification.fit import live_top, steady_readings
+from rheo_ros.identification.noise import sensor_noise
 from rheo_ros.record import Record
 from rheo_ros.sensors import difference_noise
 
@@ -130,7 +131,19 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
     force = [c for c in cells if c["signal"] != "markers"]   # the segments and their total
     residual = record.force.sum(axis=1) - fit.prediction_total
     away = steady_readings(record)
-    noise = difference_noise(residual, away)[0]
+    # The noise from the frames every segment reads live: a dead band's zeros and a
+    # saturated reading's constant have no noise, and where they are most of the record
+    # they would claim a level of almost none (seen: 8e-8 N, sizes of 4e7 x the noise).
+    sensor = sensor_noise(record)
+    live = sensor.force_live.all(axis=1)
+    noise = difference_noise(residual, away & live)[0]
+    if not np.isfinite(noise):
+        noise = difference_noise(residual, away)[0]
+    # A saturated reading is no measure of the force (it only bounds it): its frame has
+    # no residual to describe.
+    top = live_top(record, sensor.force_std)
+    if top is not None:
+        away = away & ~(record.force > top).any(axis=1)
     shapes = {}
     if np.isfinite(noise) and noise > 0:
         for phase in record.profile().phases:
