@@ -75,3 +75,19 @@ def test_the_closed_form_follows_the_recovery_on_noisy_sensors(analyses, sensor)
     for name in ("E", "c1", "c2"):
         assert abs(relative(estimate[name], name)) < 3e-3, (name, estimate[name])
     assert abs(relative(estimate["gamma"], "gamma")) < 1e-2
+
+
+def test_a_sensor_clipped_at_its_saturation_leaves_the_fit_within_its_std(tmp_path):
+    """The generator's clipped sensor (cells saturating at 4000 Pa, reached at the end of
+    the pull and early in the keep): a saturated reading bounds the force from below, the
+    readings under the top are measures. Each reading's own value decides whether it is
+    saturated (a window's median would leave readings under the top that are neither
+    measure nor bound: E came out 24 std low here, 8 on a bench bag). Measured (seed 1):
+    within 1.3 std for every parameter; tolerance 3 std."""
+    bag = generate(tmp_path / "clipped", sensor="clipped", seed=1)
+    report = analyze(Path(bag), discover_effects=False, workers=1).to_json()
+    fit = report["models"][0]
+    assert report["sensor"]["tactile"]["saturation"] == 4000.0
+    for name in PARAMS:
+        error = fit["params"][name] - getattr(TRUTH, name)
+        assert abs(error) < 3 * fit["std"][name], (name, error / fit["std"][name])

@@ -17,8 +17,8 @@ __all__ = ["SensorNoise", "Weights", "despiked", "difference_noise", "force_nois
            "sensor_noise", "spikes_note"]
 
 # A reading is live when the running median of its segment's readings over this many frames
-# is in the live range, not the reading itself: chosen by its own noise, the readings kept
-# near the live threshold would be those the noise lifted (a drift settling through the
+# is above the live threshold, not the reading itself: chosen by its own noise, the readings
+# kept near the threshold would be those the noise lifted (a drift settling through the
 # threshold of a sensor with no dead band came out 46 s against 60).
 LIVE_WINDOW = 25
 SPIKE_SIGMAS = 8.0    # a reading this many noise stds off the midpoint of its two neighbours ...
@@ -93,7 +93,10 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             std[j], counts[j] = difference_noise(force[:, j], live[:, j])
         if band is not None:
             std0 = np.nan_to_num(std, nan=0.0)
-            live = _most_of_window(force >= band.threshold(std0)) & _most_of_window(force <= band.top(std0))
+            # The top by each reading: one above it is clipped and bounds the force from below
+            # (``fit.bound_excess``); one below it, in a window the median puts above, would
+            # be neither a measure nor a bound of the dead band's side (seen: E 8 std low).
+            live = _most_of_window(force >= band.threshold(std0)) & (force <= band.top(std0))
     return std, live, counts
 
 
