@@ -178,10 +178,10 @@ def test_a_readings_floor_holds_however_the_force_spreads_over_the_cells(spread)
     the band) has every window's floor above zero; and with no dead band (noise 200 Pa
     clipped at zero) a force of 100 Pa a cell, under each reading's bound, has 99 % of the
     windows' floors above zero."""
-    from rheo_ros.identification.fit import FLOOR_WINDOW, ReadingWindows
+    from rheo_ros.identification.fit import READING_WINDOW, ReadingWindows
 
     rng = np.random.default_rng(3)
-    frames = 800 * FLOOR_WINDOW
+    frames = 800 * READING_WINDOW
     for array, level in [(TactileArray(), level) for level in (150.0, 300.0, 430.0, 550.0)] + \
             [(TactileArray(noise=200.0, threshold=0.0, resolution=0.0), 100.0)]:
         band = array.dead_band

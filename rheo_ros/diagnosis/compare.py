@@ -154,8 +154,8 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     limits = bounds(record, noise.force_std)
     if limits["ceiling"] is not None:
         bounded = ~noise.force_live & steady & (True if noise.force_spikes is None else ~noise.force_spikes)
-        floor = ReadingWindows(record.dead_band, record.force, bounded, limits["floor_std"])
-        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], floor)
+        windows = ReadingWindows(record.dead_band, record.force, bounded, limits["window_std"])
+        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], windows)
         rf = np.where(bounded & (excess != 0.0), excess, rf)
     counted = np.isfinite(rf)
     stats: list[ResidualStats] = []

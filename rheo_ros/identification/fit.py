@@ -52,9 +52,9 @@ DISCRETISATION_RATIO = 0.37
 # calibration`: up to 1.06 on ~3000 live readings, 1.17 on a shallow push's few hundred.
 MISFIT_RATIO = 1.25
 MISFIT_SIGMAS = 5.0
-# Readings under the live threshold averaged into one pair of bounds (``ReadingWindows``): the
-# live rule's window, half a second at 50 Hz.
-FLOOR_WINDOW = 25
+# Readings under the live threshold averaged into one pair of bounds (``ReadingWindows``): as
+# many as the live rule's window (``noise.LIVE_WINDOW``), half a second at 50 Hz.
+READING_WINDOW = 25
 OVERFLOW_RESIDUAL = 1e6   # noise stds: a residual of a model whose forces overflowed
 
 
@@ -85,7 +85,7 @@ class WholeRecordProblem:
             force was below it). None: readings that are not live are left out.
         top: (nodes,) N: the lowest force a saturated reading (one above it) can stand
             for; a model predicting less there is penalised likewise. None: no saturation.
-        floor_std: (nodes,) N: the sensor noise by which windows of readings that are not
+        window_std: (nodes,) N: the sensor noise by which windows of readings that are not
             live bound the mean force from both sides (``ReadingWindows``): a model outside
             is penalised by the excess. None: no such bound.
         excluded: (T, nodes) readings neither live nor a bound (isolated spikes,
@@ -107,7 +107,7 @@ class WholeRecordProblem:
     delays: bool = False
     ceiling: np.ndarray | None = None
     top: np.ndarray | None = None
-    floor_std: np.ndarray | None = None
+    window_std: np.ndarray | None = None
     excluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
@@ -119,8 +119,8 @@ class WholeRecordProblem:
         # The readings that bound the model: neither live nor left out.
         self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
         band = self.record.dead_band
-        self._floor = (None if self.floor_std is None or band is None else
-                       ReadingWindows(band, self._force, self._bounded, self.floor_std))
+        self._windows = (None if self.window_std is None or band is None else
+                       ReadingWindows(band, self._force, self._bounded, self.window_std))
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -163,7 +163,7 @@ class WholeRecordProblem:
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
         parts = [rf.ravel(), rm.ravel(), prior]
         if self.ceiling is not None:
-            excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._floor)
+            excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._windows)
             parts.append((excess / self.force_std)[self._bounded])
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
@@ -209,14 +209,14 @@ def live_ceiling(record: Record, force_std: np.ndarray) -> np.ndarray | None:
 
 def bounds(record: Record, force_std: np.ndarray) -> dict[str, np.ndarray | None]:
     """What the record's readings that are not live say of the force, at noise
-    ``force_std``: ``ceiling``, ``top`` and ``floor_std`` of a ``WholeRecordProblem``."""
+    ``force_std``: ``ceiling``, ``top`` and ``window_std`` of a ``WholeRecordProblem``."""
     return {"ceiling": live_ceiling(record, force_std), "top": live_top(record, force_std),
-            "floor_std": None if record.dead_band is None else np.asarray(force_std, float)}
+            "window_std": None if record.dead_band is None else np.asarray(force_std, float)}
 
 
 class ReadingWindows:
     """What readings under the live threshold say of the force: in windows of
-    ``FLOOR_WINDOW`` of a segment's such readings in a row, the mean force lies within
+    ``READING_WINDOW`` of a segment's such readings in a row, the mean force lies within
     three stds of the window's mean reading, less the most a reading exceeds its force
     (``DeadBand.excess``: the clipped noise) and plus the most it falls short of it
     (``DeadBand.deficit``: the dead band). Means, not each reading: a held adhesion of 100
@@ -237,9 +237,9 @@ class ReadingWindows:
         seg, self._t = np.nonzero(use.T)   # by segment, then in time
         nodes = readings.shape[1]
         first = np.searchsorted(seg, np.arange(nodes))
-        windows = -(-np.bincount(seg, minlength=nodes) // FLOOR_WINDOW)
+        windows = -(-np.bincount(seg, minlength=nodes) // READING_WINDOW)
         self._label = (np.concatenate([[0], np.cumsum(windows)[:-1]])[seg]
-                       + (np.arange(seg.size) - first[seg]) // FLOOR_WINDOW)
+                       + (np.arange(seg.size) - first[seg]) // READING_WINDOW)
         self._seg, self.shape = seg, readings.shape
         self._size = np.bincount(self._label).astype(float)
         window_seg = np.zeros(self._size.size, int)
@@ -571,7 +571,7 @@ def fit_record(
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
-    if problem.ceiling is not None and problem.floor_std is not None:
+    if problem.ceiling is not None and problem.window_std is not None:
         # A parameter no live reading and no marker moves is held by the bounds alone: a
         # hinge barely active at the fit gives it a slope, and a std, that say nothing.
         column = np.linalg.norm(sol.jac, axis=0)
