@@ -12,9 +12,10 @@ cluster's workers already fill the cores, one bag each.
 from __future__ import annotations
 
 import json
+import logging
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -211,9 +212,32 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
         return
     from rheo_ros.diagnosis.discover import default_workers
 
-    with LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                      dashboard_address=None, env=WORKER_ENV) as cluster, Client(cluster) as client:
-        yield client
+    levels = {name: logging.getLogger(name).level for name in DISTRIBUTED_LOGGERS}
+    try:
+        with LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                          dashboard_address=None, env=WORKER_ENV) as cluster, Client(cluster) as client:
+            try:
+                yield client
+            finally:
+                # A worker's heartbeat racing the shutdown logs a traceback ("Stream is
+                # closed") after every result is in: the run is over, nothing to report.
+                with suppress(Exception):
+                    client.run(quiet_distributed_logs)
+                quiet_distributed_logs()
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+# distributed's loggers a closing local cluster may write to.
+DISTRIBUTED_LOGGERS = ("distributed", "distributed.worker", "distributed.nanny", "distributed.core",
+                       "distributed.scheduler", "distributed.comm", "distributed.batched")
+
+
+def quiet_distributed_logs() -> None:
+    """Hold distributed's loggers to CRITICAL in this process (a closing cluster's)."""
+    for name in DISTRIBUTED_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def batch_jobs(bags: Sequence[Path], params_file: str | None, effects: Sequence[str], discover: bool,

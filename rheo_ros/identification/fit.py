@@ -244,8 +244,9 @@ class ReadingWindows:
         self._size = np.bincount(self._label).astype(float)
         window_seg = np.zeros(self._size.size, int)
         window_seg[self._label] = seg
-        mean = np.bincount(self._label, weights=readings[self._t, seg]) / np.maximum(self._size, 1.0)
-        margin = 3.0 * std0[window_seg] / np.sqrt(np.maximum(self._size, 1.0))
+        # Every window holds at least one reading (a segment's count is split by ceiling).
+        mean = np.bincount(self._label, weights=readings[self._t, seg]) / self._size
+        margin = 3.0 * std0[window_seg] / np.sqrt(self._size)
         self.floor = mean - band.excess(std0)[window_seg] - margin
         self.ceiling = mean + band.deficit[window_seg] + margin
 
