@@ -79,6 +79,23 @@ def test_the_outcome_is_exact_only_for_the_hidden_set():
     assert diagnosis.outcome([], ["adhesion"]) == "extra"
     assert diagnosis.outcome(["adhesion"], ["adhesion"], undecided=True) == "undecided"
     assert diagnosis.outcome(["adhesion"], [], failed=True) == "failed"
+    # "The catalogue does not explain these data" on a catalogue's bag is not its answer.
+    assert diagnosis.outcome([], [], explained=False) == "unexplained"
+    assert diagnosis.outcome(["adhesion"], ["adhesion"], explained=False) == "unexplained"
+    assert diagnosis.outcome(["adhesion"], ["relaxation_branch"], explained=False) == "extra"
+
+
+def test_a_merged_run_scores_its_old_rows_as_a_new_run_would():
+    """Rows of parts made before ``refused`` and ``unexplained``: a bag declined with the
+    package's one-line error, and a clean bag called unexplained, once scored "failed"
+    and "exact"."""
+    declined = {**_row([]), "outcome": "failed", "message": "RecordError: bag: /tactile/pressure: saturated"}
+    broken = {**_row([]), "outcome": "failed", "message": "unexpected KeyError: 'x'"}
+    unexplained = {**_row([]), "explained": False, "undecided": []}
+    assert diagnosis._rescored(declined)["outcome"] == "refused"
+    assert diagnosis._rescored(broken)["outcome"] == "failed"
+    assert diagnosis._rescored(unexplained)["outcome"] == "unexplained"
+    assert diagnosis._rescored({**unexplained, "explained": True})["outcome"] == "exact"
 
 
 def test_the_threshold_is_the_smallest_size_above_which_the_target_is_exact():
@@ -116,11 +133,13 @@ def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
                  ["relaxation_branch", "adhesion"], forms={"adhesion": "fading", "relaxation_branch": "two_arms"}),
             _row([("adhesion", "held", 6.0), ("relaxation_branch", "one_arm", 0.5)], ["adhesion"],
                  forms={"adhesion": "held"}),
-            {**_row([]), "hidden": None, "outcome": "failed"}]   # the source failed: truth unknown
+            {**_row([]), "hidden": None, "outcome": "failed"},   # the source failed: truth unknown
+            {**_row([]), "outcome": "refused", "force_rms_to_noise": None}]   # declined: no claim, no fit
     s = diagnosis.score(rows, 0.95)
     assert s["clean_bags"] == 3 and s["false_claims_on_clean"] == 1 and s["undecided_on_clean"] == 1
     assert s["clean_fit_within"] == 2 and s["clean_fit_max"] == 1.4
-    assert [s["by_hidden"][n]["bags"] for n in (0, 1, 2)] == [3, 3, 2] and s["failed"] == 1
+    assert [s["by_hidden"][n]["bags"] for n in (0, 1, 2)] == [4, 3, 2] and s["failed"] == 1 and s["refused"] == 1
+    assert s["by_hidden"][0]["outcomes"]["refused"] == 1
     assert s["thresholds"]["adhesion"]["threshold"] == 5.0
     assert s["thresholds"]["relaxation_branch"]["threshold"] == 8.0
     # Above: the held adhesion, the arm and the first pair (both effects above); below: the
@@ -183,7 +202,8 @@ def test_out_of_catalogue_bags_are_scored_apart_and_a_name_is_wrong():
             _row([])]
     result = diagnosis.score(rows, 0.95)
     assert result["outside"]["bags"] == 3 and result["clean_bags"] == 1
-    assert result["outside"]["outcomes"] == {"unexplained": 1, "missed": 1, "wrong": 1, "undecided": 0, "failed": 0}
+    assert result["outside"]["outcomes"] == {"unexplained": 1, "missed": 1, "wrong": 1, "undecided": 0, "refused": 0,
+                                                  "failed": 0}
     assert result["outside"]["by_effect"]["sensor_lag"]["wrong"] == 1
 
 

@@ -21,7 +21,7 @@ from rheo_ros.config.setup import Setup, check_params, load_params
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
 from rheo_ros.diagnosis.discover import Progress, discover
-from rheo_ros.diagnosis.fits import add_effect, assess, polish
+from rheo_ros.diagnosis.fits import add_effect, base_model, polish
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import sensor_noise, spikes_note
 from rheo_ros.identification.pipeline import (
@@ -41,8 +41,7 @@ from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.files import write_json_atomic
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
-from rheo_ros.models.effects import Model, effect_class
-from rheo_ros.models.elements import three_element
+from rheo_ros.models.effects import effect_class
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
 from rheo_ros.record import RecordError, contact_depth
@@ -280,8 +279,8 @@ def _analyze_push(bag: str | Path, setup: Setup, job: Job, number: int, effects:
     say("fitting three_element over the whole record")
     fit = fit_from_starts(record, forward, starts, noise=noise)
     _, fit = relaxation_unseen(record, fit, forward, starts)   # as the node: a flat c2 valley widens the rest
-    noise = noise.floored(fit.statistics.floor)   # the model's own resolution: never judged against zero
-    models = [assess(record, forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)]
+    base, noise = base_model(record, forward, fit, noise)
+    models = [base]
     for effect in effects:
         current = models[-1]
         effect_id, _, form = effect.partition(":")

@@ -49,10 +49,13 @@ without the effects, within 0.1 % of the simulator's own noise-free run (checked
 bag of each effect) at a fraction of its cost.
 
 **Scoring** (:func:`score`). Each bag is analysed as ``rheo analyze`` does (``analyze``,
-every candidate). Its outcome is ``failed`` (could not be made or read), ``undecided``
-(the loop ended unable to tell effects apart), ``exact`` (the set of effects named,
-``missing_effects``, is the hidden set), ``missed`` (a hidden effect not named, nothing
-extra) or ``extra`` (an effect named that was not hidden). Forms are scored apart: for
+every candidate). Its outcome is ``failed`` (could not be made, or the analysis broke),
+``refused`` (the analysis declined the bag with its one-line error: a sensor saturated
+through the push, a phase too short), ``undecided`` (the loop ended unable to tell effects
+apart), ``extra`` (an effect named that was not hidden), ``unexplained`` (nothing wrong
+named, but the verdict that the catalogue does not explain the data: every bag here is
+the catalogue's), ``exact`` (the set of effects named, ``missing_effects``, is the hidden
+set) or ``missed`` (a hidden effect not named, nothing extra). Forms are scored apart: for
 each hidden effect the loop named, the form the final model holds against the hidden one.
 
 The **detection threshold** of a family (and of each form) is the smallest readable size
@@ -105,8 +108,8 @@ BagSource = Callable[[np.random.Generator, int, Path, float, bool], dict[str, An
 PROTOCOL = "bench_bag"          # the function a --generator file defines
 SIMULATOR = "rheo_ros simulator"
 FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
-OUTCOMES = ("exact", "missed", "extra", "undecided", "failed")
-OUTSIDE_OUTCOMES = ("unexplained", "missed", "wrong", "undecided", "failed")
+OUTCOMES = ("exact", "missed", "extra", "unexplained", "undecided", "refused", "failed")
+OUTSIDE_OUTCOMES = ("unexplained", "missed", "wrong", "undecided", "refused", "failed")
 WRONG_LIMIT = 0.02              # wrong names on out-of-catalogue bags at most this share
 # Exact-set accuracy wanted above the threshold: at the default noise, and at twice it.
 TARGETS = {1.0: 0.95, 2.0: 0.90}
@@ -311,17 +314,22 @@ def outside_outcome(named: Iterable[str], explained: bool | None, undecided: boo
     return "unexplained" if explained is False else "missed"
 
 
-def outcome(hidden: Iterable[str], named: Iterable[str], undecided: bool = False, failed: bool = False) -> str:
+def outcome(hidden: Iterable[str], named: Iterable[str], undecided: bool = False, failed: bool = False,
+            explained: bool | None = None) -> str:
     """One of :data:`OUTCOMES` for a bag hiding the families ``hidden`` where the loop
-    named ``named`` (``undecided``: it ended unable to decide; ``failed``: no analysis)."""
+    named ``named`` (``undecided``: it ended unable to decide; ``failed``: no analysis;
+    ``explained`` False: it said the catalogue does not explain the data, which for a
+    catalogue's bag is not the answer even when nothing wrong was named)."""
     hidden, named = set(hidden), set(named)
     if failed:
         return "failed"
     if undecided:
         return "undecided"
-    if named == hidden:
-        return "exact"
-    return "extra" if named - hidden else "missed"
+    if named - hidden:
+        return "extra"
+    if explained is False:
+        return "unexplained"
+    return "exact" if named == hidden else "missed"
 
 
 def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: Path,
@@ -356,9 +364,12 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
                 "undecided": undecided, "explained": explained, "force_rms_to_noise": force_rms_to_noise(analysis.final),
                 "evidence": " ".join(d.evidence for d in analysis.diagnoses),
                 "outcome": outside_outcome(analysis.missing_effects, explained, bool(undecided)) if row["outside"]
-                else outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided))}
-    except (BagError, RecordError, ParamsError, ValueError) as exc:
+                else outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided),
+                             explained=explained)}
+    except (BagError, RecordError, ParamsError, ValueError) as exc:   # REFUSALS
         row["message"] = f"{type(exc).__name__}: {exc}"
+        if row["hidden"] is not None:   # a bag made right that the package declined: its answer
+            row["outcome"] = "refused"
     except Exception as exc:  # noqa: BLE001 - one bag must not end a long bench
         row["message"] = f"unexpected {type(exc).__name__}: {exc}"
         traceback.print_exc(file=sys.stderr)
@@ -426,12 +437,14 @@ def form_scores(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, int
 
 def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     """Every figure of the bench from its rows (module docstring); a bag whose source
-    failed (``hidden`` None) counts in ``failed`` alone."""
+    failed (``hidden`` None) counts in ``failed`` alone; a bag the analysis declined counts in
+    ``refused``, and among its kind's bags as not exact (a clean one is no false claim)."""
     failed = sum(r["outcome"] == "failed" for r in rows)
+    refused = sum(r["outcome"] == "refused" for r in rows)
     outside = [r for r in rows if r["outside"]]
     rows = [r for r in rows if r["hidden"] is not None and not r["outside"]]
     effect_rows = [r for r in rows if r["hidden"]]
-    clean = [r for r in rows if not r["hidden"] and r["outcome"] != "failed"]
+    clean = [r for r in rows if not r["hidden"] and r["outcome"] not in ("failed", "refused")]
     per = thresholds(rows, target)
     families = {k: v for k, v in per.items() if ":" not in k}
     above = [r for r in effect_rows if above_thresholds(r, families)]
@@ -452,10 +465,12 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "clean_bags": len(clean),
         "false_claims_on_clean": sum(bool(r["named"]) for r in clean),
         "undecided_on_clean": sum(r["outcome"] == "undecided" for r in clean),
+        "unexplained_on_clean": sum(r["outcome"] == "unexplained" for r in clean),
         "clean_fit_median": float(np.median(fits)) if fits else None,
         "clean_fit_max": float(np.max(fits)) if fits else None,
         "clean_fit_within": sum(f <= FIT_LIMIT for f in fits),
         "failed": failed,
+        "refused": refused,
         "outside": {"bags": len(outside),
                     "outcomes": {o: sum(r["outcome"] == o for r in outside) for o in OUTSIDE_OUTCOMES},
                     "by_effect": {e: {o: sum(r["outcome"] == o for r in outside if r["outside"][0]["effect"] == e)
@@ -530,7 +545,7 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
                 raise ValueError(f"--merge: {path} and {seeds[seed]} both hold seed {seed}'s bags")
             seeds[seed] = path
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
-    rows = [{"seed": r["seed"], **row} for r in runs for row in r["bags"]]
+    rows = [_rescored({"seed": r["seed"], **row}) for r in runs for row in r["bags"]]
     target = default_target(first["noise_scale"]) if target is None else target
     return {
         **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
@@ -540,9 +555,24 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
     }
 
 
+# The errors by which the analysis declines a bag (``run_bag``'s ``refused``).
+REFUSALS = ("BagError", "RecordError", "ParamsError", "ValueError")
+
+
+def _rescored(row: dict[str, Any]) -> dict[str, Any]:
+    """A row of a run made before ``refused`` and ``unexplained`` existed, scored as
+    ``run_bag`` now does."""
+    if row["hidden"] is None or row.get("outside"):
+        return row
+    if row["outcome"] == "failed":
+        return {**row, "outcome": "refused"} if row["message"].split(":")[0] in REFUSALS else row
+    return {**row, "outcome": outcome((h["effect"] for h in row["hidden"]), row["named"], bool(row["undecided"]),
+                                      explained=row.get("explained"))}
+
+
 def _times(rows: list[dict[str, Any]], total: float) -> dict[str, float | None]:
     """The bench's times: analysis median and max over the bags analysed, making median."""
-    analysed = [r["seconds"] for r in rows if r["outcome"] != "failed"]
+    analysed = [r["seconds"] for r in rows if r["outcome"] not in ("failed", "refused")]
     return {"seconds_median": float(np.median(analysed)) if analysed else None,
             "seconds_max": float(np.max(analysed)) if analysed else None,
             "make_seconds_median": float(np.median([r["make_seconds"] for r in rows])) if rows else None,
@@ -627,11 +657,11 @@ def format_table(result: dict[str, Any]) -> str:
                  "(" + "; ".join(f"{fam}:{hid} -> " + ", ".join(f"{f} {n}" for f, n in named.items())
                                  for fam, by in result["forms"].items() for hid, named in by.items()) + ")")
     lines.append(f"clean bags: false claims {result['false_claims_on_clean']}/{result['clean_bags']}, undecided "
-                 f"{result['undecided_on_clean']}; final force RMS / noise (live readings) "
+                 f"{result['undecided_on_clean']}, unexplained {result.get('unexplained_on_clean', 0)}; final force RMS / noise (live readings) "
                  + ("-" if result["clean_fit_median"] is None else
                     f"median {result['clean_fit_median']:.3f}, max {result['clean_fit_max']:.3f}, "
                     f"{result['clean_fit_within']} within {FIT_LIMIT}"))
-    lines.append(f"failed bags: {result['failed']}")
+    lines.append(f"bags refused with a one-line error: {result.get('refused', 0)}; failed bags: {result['failed']}")
     if result["seconds_median"] is not None:
         lines.append(f"time per bag: analysis median {result['seconds_median']:.1f} s, max {result['seconds_max']:.1f} s; "
                      f"making median {result['make_seconds_median']:.1f} s; total {result['total_seconds'] / 60:.1f} min")
@@ -655,7 +685,7 @@ def accuracy_curves(rows: list[dict[str, Any]], bins: int = 8) -> dict[str, list
     out (``format_table`` lists them)."""
     groups: dict[str, list[tuple[float, bool]]] = {}
     for r in rows:
-        if r["outcome"] == "failed" or not r["hidden"]:   # None (unknown) or clean
+        if r["outcome"] in ("failed", "refused") or not r["hidden"]:   # no answer, unknown or clean
             continue
         size = min(h["size_live"] for h in r["hidden"])
         if size > 0:

@@ -32,6 +32,10 @@ from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
 
 WINDOW_S = 1.0        # running mean over this span (s) for systematic windows
+# Residuals averaged over bins this long (s) for the binned chi-square: a smooth misfit
+# keeps its whole chi-square in the bins' means while the noise's expectation falls from
+# one per reading to one per bin (module docstring).
+BIN_S = 1.0
 WINDOW_SIGMAS = 4.0   # a window stands out when its mean exceeds this many of its own std
 MAX_LAGS = 20         # Ljung-Box lags (fewer on short series: a fifth of the samples)
 
@@ -48,6 +52,9 @@ class ResidualStats:
         noise: the sensor noise std of one residual (same unit).
         whiteness_p: Ljung-Box p-value (small: the residuals are correlated in time).
         windows: (start, end) times (s) where the running mean stands out of the noise.
+        binned_chi2, bins: the chi-square of the residuals' means over ``BIN_S`` bins (each
+            over its own std, noise / sqrt(readings in it)) and the bins it counts: white
+            noise gives chi-square(bins), a misfit smooth over a bin its whole chi-square.
     """
 
     signal: str
@@ -58,6 +65,8 @@ class ResidualStats:
     noise: float
     whiteness_p: float
     windows: tuple[tuple[float, float], ...]
+    binned_chi2: float = 0.0
+    bins: int = 0
 
     @property
     def rms_over_noise(self) -> float:
@@ -99,9 +108,10 @@ def systematic_windows(t: np.ndarray, r: np.ndarray, noise: float) -> tuple[tupl
 
 
 def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
-                   profile: StageProfile) -> list[ResidualStats]:
+                   profile: StageProfile, floor: float = 0.0) -> list[ResidualStats]:
     """Per-phase statistics of one signal's residuals ``r`` (T,) or (T, k) at times ``t``;
-    a (T, k) signal (the markers' coordinates) is pooled over its columns."""
+    a (T, k) signal (the markers' coordinates) is pooled over its columns. ``floor``: the
+    part of ``noise`` that is the model's own systematic floor (``SensorNoise.floored``)."""
     r2 = np.asarray(r, float).reshape(len(t), -1)
     which = phase_of(t, profile)
     out = []
@@ -112,12 +122,27 @@ def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
         x = r2[sel]
         series = x.mean(axis=1)   # markers: the mean over coordinates keeps a shared drift visible
         per_sample = noise / np.sqrt(x.shape[1])
+        binned_chi2, bins = binned_chi_square(t[sel], x, noise, floor)
         out.append(ResidualStats(
             signal=signal, phase=name, samples=int(x.size), rms=float(np.sqrt(np.mean(x**2))),
             bias=float(x.mean()), noise=float(noise), whiteness_p=ljung_box_p(series),
-            windows=systematic_windows(t[sel], series, per_sample),
+            windows=systematic_windows(t[sel], series, per_sample), binned_chi2=binned_chi2, bins=bins,
         ))
     return out
+
+
+def binned_chi_square(t: np.ndarray, x: np.ndarray, noise: float, floor: float = 0.0) -> tuple[float, int]:
+    """Chi-square of the means of ``x`` (T, k) over ``BIN_S`` bins of ``t`` (T,), each
+    column apart, each mean over its std; and the bins x columns it counts (0, 0 without a
+    noise). Of ``noise`` per reading, the sensor's part averages down over a bin's readings
+    and the model's ``floor`` does not (a systematic error, the same through the bin)."""
+    if not noise > 0 or t.size == 0:
+        return 0.0, 0
+    label = np.floor((t - t[0]) / BIN_S).astype(np.int64)
+    _, label, size = np.unique(label, return_inverse=True, return_counts=True)
+    means = np.stack([np.bincount(label, weights=col) for col in x.T], axis=1) / size[:, None]
+    variance = max(noise**2 - floor**2, 0.0) / size + floor**2
+    return float(np.sum(means**2 / variance[:, None])), int(means.size)
 
 
 @dataclass(frozen=True)
@@ -158,19 +183,23 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
         excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], windows)
         rf = np.where(bounded & (excess != 0.0), excess, rf)
     counted = np.isfinite(rf)
+    force_floor = np.broadcast_to(noise.force_floor, noise.force_std.shape)
     stats: list[ResidualStats] = []
     for j in range(rf.shape[1]):
         rows = counted[:, j]
         if rows.sum() >= 3 and np.isfinite(noise.force_std[j]):
-            stats += residual_stats(f"P{j + 1}", record.force_t[rows], rf[rows, j], noise.force_std[j], profile)
+            stats += residual_stats(f"P{j + 1}", record.force_t[rows], rf[rows, j], noise.force_std[j], profile,
+                                    float(force_floor[j]))
     # The total: readings every segment has live (a bound's excess is no reading to sum).
     every = live.all(axis=1) & np.all(np.isfinite(noise.force_std))
     if every.sum() >= 3:
         total_noise = float(np.sqrt(np.sum(noise.force_std**2)))
-        stats += residual_stats("total", record.force_t[every], rf[every].sum(axis=1), total_noise, profile)
+        # The segments' floors are one model's error: they add up, they do not average.
+        stats += residual_stats("total", record.force_t[every], rf[every].sum(axis=1), total_noise, profile,
+                                min(float(force_floor.sum()), total_noise))
     # Each marker's start is a nuisance (the fit profiles it out): residuals about its mean.
     rm = p.displacement - (record.markers - record.mesh.nodes[None])
     rm = rm - rm.mean(axis=0)
     stats += residual_stats("markers", record.marker_t, rm.reshape(len(record.marker_t), -1),
-                            noise.marker_std, profile)
+                            noise.marker_std, profile, noise.marker_floor)
     return Comparison(model.name, tuple(stats))

@@ -34,10 +34,12 @@ from rheo_ros.record import Record
 Progress = Callable[[str], None]
 
 
-# A family's other forms are fitted where its default lowers the BIC decisively and by
-# at least this share of what the round's best default achieves: a family far behind the
-# leader does not overtake it by a change of form, and an idle form (a second relaxation
-# arm on data with none) can cost tens of seconds of fitting.
+# A family's other forms are fitted, where the model misfits in their phases, unless a
+# default lowers the BIC decisively and this family's by less than this share of that
+# leader's drop: a family far behind the leader does not overtake it by a change of form,
+# and an idle form (a second relaxation arm on data with none) can cost tens of seconds
+# of fitting. With no decisive leader every family's forms may be the one (a settling
+# drift the linear default took 36 % of, 4.9 in BIC, and a settling form all of).
 FORM_SHARE = 0.1
 # Forms whose screening BIC drops are within this share of each other are refined before
 # one is named (a linear drift's screening fit left c2 25 x off: a per-segment one beat
@@ -59,13 +61,14 @@ def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
 
 def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[str, str]]:
     """(effect id, form) of the other forms worth fitting after the families' defaults:
-    those of each family whose default lowers the BIC decisively and by at least
-    ``FORM_SHARE`` of the best default's drop, where ``current`` misfits in the phases the
-    form shows in (elsewhere no form can earn its parameters: ``decision.judge``)."""
+    where ``current`` misfits in the phases the form shows in (elsewhere no form can earn
+    its parameters: ``decision.judge``), those of each family but the ones far behind a
+    decisive leader (``FORM_SHARE``)."""
     drops = [c.delta_bic for c in defaults if np.isfinite(c.delta_bic)]
     if not drops:
         return []
-    bar = min(-BIC_DECISIVE, FORM_SHARE * min(drops))
+    leader = min(drops)
+    bar = FORM_SHARE * leader if leader < -BIC_DECISIVE else np.inf
     return [(c.effect, cls.form) for c in defaults if c.delta_bic <= bar for cls in effect_forms(c.effect)[1:]
             if phase_excess(current, cls.shows_in or PHASES) > EXCESS_SIGMAS]
 

@@ -14,7 +14,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.closed_form import from_final_displacement
 from rheo_ros.identification.estimate import Estimate
 from rheo_ros.identification.fit import WholeRecordProblem, bounds, fit_record, misfit_limit
-from rheo_ros.identification.noise import SensorNoise, sensor_noise
+from rheo_ros.identification.noise import SensorNoise, Weights, sensor_noise
 from rheo_ros.identification.pipeline import fit_weights, force_error
 from rheo_ros.models.effects import Effect, FitContext, Model, effect_class
 from rheo_ros.models.elements import three_element
@@ -82,16 +82,17 @@ class ModelFit:
         return sum(s.samples for s in self.comparison.stats if s.signal == signal)
 
     def phase_chi2(self, phases: Iterable[str], signals: Iterable[str] = ("force",)) -> tuple[float, int]:
-        """Chi-square of the residuals over ``phases`` of ``signals`` (``force``: every
-        segment's live readings; ``markers``: every marker coordinate) and the readings
-        it counts."""
+        """Chi-square of the residuals' means over ``compare.BIN_S`` bins in ``phases`` of
+        ``signals`` (``force``: every segment's live readings; ``markers``: every marker
+        coordinate), and the bins it counts: white noise gives chi-square(bins), a misfit
+        that is smooth over a bin its whole chi-square (``ResidualStats.binned_chi2``)."""
         signals = set(signals)
         chi, n = 0.0, 0
         for s in self.comparison.stats:
             kind = "force" if s.signal.startswith("P") else s.signal
             if kind in signals and s.phase in phases and s.noise > 0:
-                chi += s.samples * (s.rms / s.noise) ** 2
-                n += s.samples
+                chi += s.binned_chi2
+                n += s.bins
         return chi, n
 
 
@@ -148,16 +149,49 @@ def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effec
     record (no noise to weight by) the residuals' own levels."""
     model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
     stats = current.estimate.statistics
-    problem = WholeRecordProblem(record, model, stats.force_weights, stats.weights["markers"], forward=forward,
+    weights = Weights(stats.force_weights, stats.weights["markers"])
+    return chi_square(record, forward, model, {**current.estimate.params, **effect.parameters}, current.delays,
+                      weights, noise)
+
+
+def chi_square(record: Record, forward: QuasiStaticFE, model: Model, params: dict[str, float],
+               delays: tuple[float, float], weights: Weights, noise: SensorNoise) -> float:
+    """The whole-record fit's cost of ``model`` at ``params`` and the clock ``delays``
+    (tactile, marker; s) under ``weights``, with the readings ``noise`` (the sensor's,
+    unfloored, as ``fit_record`` takes them) holds live or as bounds; inf if it cannot be
+    evaluated."""
+    problem = WholeRecordProblem(record, model, weights.force_std, weights.marker_std, forward=forward,
                                  live=noise.force_live, delays=True, **bounds(record, noise.force_std),
                                  excluded=noise.force_spikes)
-    tactile, marker = current.delays
-    params = {**current.estimate.params, **effect.parameters, "tactile_delay": tactile, "marker_delay": marker}
     try:
-        r = problem.residuals(params)
+        r = problem.residuals({**params, "tactile_delay": delays[0], "marker_delay": delays[1]})
     except (ValueError, np.linalg.LinAlgError):
         return np.inf
     return float(r @ r) if np.all(np.isfinite(r)) else np.inf
+
+
+def base_model(record: Record, forward: QuasiStaticFE, fit: Estimate,
+               noise: SensorNoise) -> tuple[ModelFit, SensorNoise]:
+    """The model the diagnosis starts from, the three-element whole-record ``fit``, and the
+    noise every model is then judged by: the sensor ``noise`` with the fit's floor (the
+    model's own resolution: never judged against zero). The base's cost is taken again
+    under those weights, as every candidate is fitted under them: left on the sensor
+    noise's scale, a plane-FE record's base (floor 0.14-0.2 of the noise) lost to each
+    candidate by the floor's share of its chi-square, effects of size zero "lowering the
+    BIC" by 310-364."""
+    floored = noise.floored(fit.statistics.floor)
+    base = assess(record, forward, Model(three_element(1.0, 1.0, 1.0)), fit, floored)
+    weights = fit_weights(floored)
+    if weights is None:   # no noise to weight by: the fit's own levels stand
+        return base, floored
+    cost = chi_square(record, forward, base.model, base.estimate.params, base.delays, weights, noise)
+    if not np.isfinite(cost):
+        return base, floored
+    stats = base.estimate.statistics
+    levels = dict(zip(stats.signals, [*np.broadcast_to(weights.force_std, (len(stats.signals) - 1,)).tolist(),
+                                      weights.marker_std]))
+    estimate = replace(base.estimate, statistics=replace(stats, cost=cost, weights=levels))
+    return replace(base, estimate=estimate, cost=cost), floored
 
 
 def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,

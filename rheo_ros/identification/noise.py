@@ -46,6 +46,9 @@ class SensorNoise:
             every fit and comparison.
         marker_std: std of a marker coordinate (m).
         force_samples, marker_samples: second differences each level rests on.
+        force_floor, marker_floor: the part of each level that is the model's own floor
+            (``floored``; 0: the sensor's alone): a systematic error, the same in every
+            reading of a stretch, where the sensor's noise is independent reading by reading.
     """
 
     force_std: np.ndarray
@@ -54,6 +57,8 @@ class SensorNoise:
     force_samples: np.ndarray
     marker_samples: int
     force_spikes: np.ndarray | None = None
+    force_floor: np.ndarray | float = 0.0
+    marker_floor: float = 0.0
 
     @property
     def known(self) -> bool:
@@ -73,7 +78,9 @@ class SensorNoise:
         force_floor = np.array([floor[f"P{j + 1}"] for j in range(self.force_std.size)])
         # NaN stays NaN: a segment with too few live readings shows no level to floor.
         return replace(self, force_std=np.hypot(self.force_std, force_floor),
-                       marker_std=float(np.hypot(self.marker_std, floor["markers"])))
+                       marker_std=float(np.hypot(self.marker_std, floor["markers"])),
+                       force_floor=np.hypot(self.force_floor, force_floor),
+                       marker_floor=float(np.hypot(self.marker_floor, floor["markers"])))
 
 
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,7 +103,9 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             # The top by each reading: one above it is clipped and bounds the force from below
             # (``fit.bound_excess``); one below it, in a window the median puts above, would
             # be neither a measure nor a bound of the dead band's side (seen: E 8 std low).
-            live = _most_of_window(force >= band.threshold(std0)) & (force <= band.top(std0))
+            # At saturation itself never (a segment whose noise is not known has no margin).
+            live = (_most_of_window(force >= band.threshold(std0)) & (force <= band.top(std0))
+                    & (force < band.saturation))
     return std, live, counts
 
 

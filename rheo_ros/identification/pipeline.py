@@ -85,14 +85,17 @@ def require_readings(record: Record, stream: str = "tactile") -> None:
     # force: the closed forms read a flat line, the fit only bounds.
     profile = record.profile()
     pressing = (record.force_t >= profile.t_pull_start) & (record.force_t <= profile.t_keep_end)
-    std = np.nan_to_num(force_noise(record)[0])
+    measured = force_noise(record)[0]
+    std = np.nan_to_num(measured)
     force = record.force[pressing]
     saturated = force >= band.top(std)   # at saturation itself where the noise is nil
-    if saturated.any() and not (band.live(force, std) & ~saturated).any():
+    # Between the two, too few readings for any segment to show its noise: no force scale.
+    if saturated.any() and (not (band.live(force, std) & ~saturated).any() or np.isnan(measured).all()):
         top = ", ".join(f"{v:.3g}" for v in np.broadcast_to(band.saturation, (record.mesh.cols,)))
         raise RecordError(f"{record.source}: {stream}: through the pull and the keep every segment reads at its "
-                          f"saturation ({top} N, P1, P2, ...) or under its dead band: the array did not measure "
-                          "the push's force; a sensor with a larger range, or a shallower push")
+                          f"saturation ({top} N, P1, P2, ...) or under its dead band (too few readings between "
+                          "them to show a noise): the array did not measure the push's force; a sensor with a "
+                          "larger range, or a shallower push")
 
 
 def closed_form(phase: str, record: Record, forward: QuasiStaticFE, solutions: int = STARTS,

@@ -38,7 +38,7 @@ from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.diagnosis.decision import Verdict, at_bound
 from rheo_ros.diagnosis.discover import discover
 from rheo_ros.diagnosis.evidence import judged_keep, keep_too_short
-from rheo_ros.diagnosis.fits import ModelFit, assess
+from rheo_ros.diagnosis.fits import ModelFit, base_model
 from rheo_ros.experiment import PUSH_PHASES, StageProfile, check_object_hint
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.fe.quasistatic import QuasiStaticFE
@@ -356,8 +356,7 @@ class PhaseIdentifier:
             RecordError: the job has no record.
         """
         rec = self._record(job)
-        noise = sensor_noise(rec).floored(fit.statistics.floor)   # as rheo analyze: never judged against zero
-        base = assess(rec, self.forward, Model(three_element(1.0, 1.0, 1.0)), fit, noise)
+        base, noise = base_model(rec, self.forward, fit, sensor_noise(rec))   # as rheo analyze
         # One process: the node's fit lane is a worker already.
         models, verdicts = discover(rec, self.forward, base, noise=noise, workers=1)
         verdict = Verdict.of(verdicts)
