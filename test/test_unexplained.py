@@ -216,22 +216,23 @@ def test_with_the_effect_as_a_plugin_it_is_named_the_model_adequate_and_its_para
 
 
 def test_on_the_package_simulators_bag_the_lag_plugin_is_named_and_right(tmp_path, lag_plugin):
-    """The other generator: the package's simulator (FE, its own sensor path) runs the
-    plugin's lag (share 0.3, 1.5 s) through a short push; the analysis with the plugin
-    names it, adequate, and nothing else (with the lag held between samples instead of the
-    README's exact law, a settling drift was named beside it); the lag and E, c1, c2
-    within 6 std of what the simulator was given, as test_discovery allows the package's
-    simulator (its finer mesh is not the fit's; measured: E +3.9 std, 0.18 %, the lag
-    within 1.9 std)."""
+    """The other generator: the package's simulator (FE on its converged mesh, its own
+    sensor path) runs the plugin's lag (share 0.3, 1.5 s) through a short push; the
+    analysis with the plugin names it, adequate, and nothing else (with the lag held
+    between samples instead of the README's exact law, a settling drift was named beside
+    it); the lag and E, c1, c2 within 3 std of what the simulator was given (measured:
+    within 2.12 std, c2; the share 1.92). On a coarse simulator mesh (refine 4) its own
+    discretisation is in the data and no model here has it: the force's 1-s means then
+    misfit in the pull and keep at 19 sd and the verdict is, rightly, unexplained."""
     from rheo_ros.app.simulate import simulate_to_bag
 
     truth = {"effects.sensor_lag.time": 1.5, "effects.sensor_lag.share": 0.3}
-    setup = Setup(check_params({"stage.keep_time": 10.0, "stage.release_time": 15.0, "simulator.refine": 4,
+    setup = Setup(check_params({"stage.keep_time": 10.0, "stage.release_time": 15.0,
                                 "simulator.effects": ["sensor_lag"], **truth}))
     simulate_to_bag(setup, 7, tmp_path / "bag")
     report = analyze(str(tmp_path / "bag"), workers=1).to_json()
     assert_named_and_right(report, "sensor_lag", {"sensor_lag.time": 1.5, "sensor_lag.share": 0.3},
-                           simulated_material(setup), stds=6)
+                           simulated_material(setup), stds=3)
 
 
 def test_parameters_at_a_bound_have_no_std_and_are_named(tmp_path):
@@ -406,19 +407,20 @@ def test_with_the_material_law_as_a_plugin_it_is_named_and_its_softening_measure
 
 
 def test_on_the_package_simulators_bag_the_damage_plugin_is_named_and_right(tmp_path, damaged):
-    """The other generator: the package's simulator (FE, its sensor path, the plugin's
-    law streamed with its whole history) damages the block in the generator's push; with
-    the plugin the analysis names damage alone, adequate, the softening and E, c1, c2
-    within 6 std of what the simulator was given (the FE simulator's allowance, as for the
-    lag above; measured without discovery: E +1.9 std, softening +0.3 std). The push
+    """The other generator: the package's simulator (FE on its converged mesh, its sensor
+    path, the plugin's law streamed with its whole history) damages the block in the
+    generator's push; with the plugin the analysis names damage alone, adequate, the
+    softening and E, c1, c2 within 3 std of what the simulator was given (measured: within
+    0.99 std, c2; on a coarse simulator mesh, refine 4, a per-segment drift was named
+    beside it, fitting the mesh's segment forces). The push
     matters: with the default 20 s pull and a 10 s keep the softening trades against c2
     (the keep too short to pin it) and the fit sends c2 to infinity."""
     from rheo_ros.app.simulate import simulate_to_bag
 
     _, _, _, site = damaged
     with plugin_on_path(site, "damage", "rheo_damage"):
-        setup = Setup(check_params({**DAMAGE_PUSH, "simulator.refine": 4, "simulator.effects": ["damage"],
+        setup = Setup(check_params({**DAMAGE_PUSH, "simulator.effects": ["damage"],
                                     "effects.damage.softening": SOFTENING}))
         simulate_to_bag(setup, 7, tmp_path / "bag")
         report = analyze(str(tmp_path / "bag"), workers=1).to_json()
-    assert_named_and_right(report, "damage", {"damage.softening": SOFTENING}, simulated_material(setup), stds=6)
+    assert_named_and_right(report, "damage", {"damage.softening": SOFTENING}, simulated_material(setup), stds=3)
