@@ -642,10 +642,10 @@ def format_table(result: dict[str, Any]) -> str:
     lines = [f"diagnosis over {result['replicates']} bags from {result['source']} ({_seeds(result['seed'])}, noise x "
              f"{result['noise_scale']:g}" + (", quick records" if result.get("quick") else "") + ")",
              "exact-set accuracy (the effects named are the hidden ones, nothing extra) by effects hidden:",
-             f"  {'hidden':<10}{'bags':>6}" + "".join(f"{o:>11}" for o in OUTCOMES) + f"{'accuracy':>11}"]
+             f"  {'hidden':<10}{'bags':>6}" + "".join(f"{o:>12}" for o in OUTCOMES) + f"{'accuracy':>11}"]
     for n, acc in result["by_hidden"].items():
         share = "-" if acc["accuracy"] is None else f"{100 * acc['accuracy']:.1f} %"
-        lines.append(f"  {n:<10}{acc['bags']:>6}" + "".join(f"{acc['outcomes'][o]:>11}" for o in OUTCOMES)
+        lines.append(f"  {n:<10}{acc['bags']:>6}" + "".join(f"{acc['outcomes'][o]:>12}" for o in OUTCOMES)
                      + f"{share:>11}")
     lines.append(f"detection threshold (readable size x the total-force noise; {target:.0f} % exact above it; "
                  "single-effect bags):")
