@@ -110,6 +110,9 @@ SIMULATOR = "rheo_ros simulator"
 FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
 OUTCOMES = ("exact", "missed", "extra", "unexplained", "undecided", "refused", "failed")
 OUTSIDE_OUTCOMES = ("unexplained", "missed", "wrong", "undecided", "refused", "failed")
+NO_ANSWER = ("refused", "failed")   # outcomes with no analysis to score
+# The errors by which the analysis declines a bag in one line (``refused``).
+REFUSALS = (BagError, RecordError, ParamsError, ValueError)
 WRONG_LIMIT = 0.02              # wrong names on out-of-catalogue bags at most this share
 # Exact-set accuracy wanted above the threshold: at the default noise, and at twice it.
 TARGETS = {1.0: 0.95, 2.0: 0.90}
@@ -366,7 +369,7 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
                 "outcome": outside_outcome(analysis.missing_effects, explained, bool(undecided)) if row["outside"]
                 else outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided),
                              explained=explained)}
-    except (BagError, RecordError, ParamsError, ValueError) as exc:   # REFUSALS
+    except REFUSALS as exc:
         row["message"] = f"{type(exc).__name__}: {exc}"
         if row["hidden"] is not None:   # a bag made right that the package declined: its answer
             row["outcome"] = "refused"
@@ -444,7 +447,7 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     outside = [r for r in rows if r["outside"]]
     rows = [r for r in rows if r["hidden"] is not None and not r["outside"]]
     effect_rows = [r for r in rows if r["hidden"]]
-    clean = [r for r in rows if not r["hidden"] and r["outcome"] not in ("failed", "refused")]
+    clean = [r for r in rows if not r["hidden"] and r["outcome"] not in NO_ANSWER]
     per = thresholds(rows, target)
     families = {k: v for k, v in per.items() if ":" not in k}
     above = [r for r in effect_rows if above_thresholds(r, families)]
@@ -555,8 +558,6 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
     }
 
 
-# The errors by which the analysis declines a bag (``run_bag``'s ``refused``).
-REFUSALS = ("BagError", "RecordError", "ParamsError", "ValueError")
 
 
 def _rescored(row: dict[str, Any]) -> dict[str, Any]:
@@ -565,14 +566,15 @@ def _rescored(row: dict[str, Any]) -> dict[str, Any]:
     if row["hidden"] is None or row.get("outside"):
         return row
     if row["outcome"] == "failed":
-        return {**row, "outcome": "refused"} if row["message"].split(":")[0] in REFUSALS else row
+        refused = row["message"].split(":")[0] in {e.__name__ for e in REFUSALS}
+        return {**row, "outcome": "refused"} if refused else row
     return {**row, "outcome": outcome((h["effect"] for h in row["hidden"]), row["named"], bool(row["undecided"]),
                                       explained=row.get("explained"))}
 
 
 def _times(rows: list[dict[str, Any]], total: float) -> dict[str, float | None]:
     """The bench's times: analysis median and max over the bags analysed, making median."""
-    analysed = [r["seconds"] for r in rows if r["outcome"] not in ("failed", "refused")]
+    analysed = [r["seconds"] for r in rows if r["outcome"] not in NO_ANSWER]
     return {"seconds_median": float(np.median(analysed)) if analysed else None,
             "seconds_max": float(np.max(analysed)) if analysed else None,
             "make_seconds_median": float(np.median([r["make_seconds"] for r in rows])) if rows else None,
@@ -685,7 +687,7 @@ def accuracy_curves(rows: list[dict[str, Any]], bins: int = 8) -> dict[str, list
     out (``format_table`` lists them)."""
     groups: dict[str, list[tuple[float, bool]]] = {}
     for r in rows:
-        if r["outcome"] in ("failed", "refused") or not r["hidden"]:   # no answer, unknown or clean
+        if r["outcome"] in NO_ANSWER or not r["hidden"]:   # no answer, unknown or clean
             continue
         size = min(h["size_live"] for h in r["hidden"])
         if size > 0:
