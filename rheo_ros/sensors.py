@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
+from scipy.special import erfc
 
 MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
 # E[max(n, 0)] of a zero-mean Gaussian n over its std (1 / sqrt(2 pi)): the most a cell's
@@ -21,6 +22,59 @@ MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not kn
 CLIPPED_NOISE_MEAN = 0.3989422804014327
 MAD_TO_STD = 1.4826    # of a Gaussian
 LINEAR = -math.inf     # the threshold of a cell with neither a dead band nor clipping at zero
+
+
+def _normal_pdf(x: np.ndarray | float) -> np.ndarray:
+    return np.exp(-0.5 * np.square(x)) / math.sqrt(2.0 * math.pi)
+
+
+# Beyond this many noise stds per count the noise no longer smooths a cell's counts: its
+# reading's bias is bounded as if it had none (half a count; the whole band).
+COARSE_STEPS = 4.0
+# How far the noise of a cell near the band may exceed the one the live readings show:
+# the bias at p = 0 is the noise's tail over the band, exponential in band / std (a std
+# 10 % high triples it at a 3-std band), and a sensor's noise may grow or lose its
+# Gaussian tails near zero.
+NOISE_DOUBT = 1.25
+
+
+@lru_cache(maxsize=256)
+def cell_reading_bias(threshold: float, std: float, step: float) -> tuple[float, float]:
+    """The most a cell's mean reading lies above and below its pressure ``p`` >= 0, over
+    every ``p``: a cell reading ``p`` plus Gaussian noise of ``std``, nothing under
+    ``threshold`` (0: the noise clipped at zero; -inf: neither), in counts of ``step`` (0:
+    none), all in one unit. Whether the band applies to the value or to its count is not
+    known: the worse of the two.
+
+    Without counts, in noise stds with t = threshold / std: E[(p+n) 1(p+n >= t)] - p =
+    phi(a) + (a - t) Phi(a), a = t - p, is at most phi(t) (at p = 0: the noise over the
+    band) and at least its minimum where Phi(a) = t phi(a) (1.45 stds short for t = 3:
+    cells just under the band). With counts, on a grid of ``p`` and of the noise: the
+    counts' edge at the band lets values up to half a count under it read, and a step
+    the noise does not smooth leaves its rounding."""
+    if threshold == -math.inf:
+        return 0.5 * step, 0.5 * step
+    threshold = max(threshold, 0.0)
+    if not std > 0.0 or step > COARSE_STEPS * std:
+        return CLIPPED_NOISE_MEAN * max(std, 0.0) + 0.5 * step, threshold + 0.5 * step
+    t, s = threshold / std, step / std
+    if s == 0.0:
+        a = np.linspace(-12.0, t, 20001)
+        short = a - t
+        return (float(_normal_pdf(t)) * std,
+                float(-np.min(_normal_pdf(a) + short * 0.5 * erfc(-a / math.sqrt(2.0)))) * std)
+    dz = min(s, 1.0) / 32.0
+    z = np.arange(-9.0, 9.0 + dz, dz)
+    weight = _normal_pdf(z) * dz
+    p = np.arange(0.0, t + 9.0, 0.01)
+    above = below = 0.0
+    for chunk in np.array_split(p, max(1, p.size // 64)):
+        x = chunk[:, None] + z[None]
+        counted = s * np.round(x / s) if s > 0.0 else x
+        for read in (np.where(x >= t, counted, 0.0), np.where(counted >= t, counted, 0.0)):
+            bias = read @ weight - chunk
+            above, below = max(above, float(bias.max())), max(below, float(-bias.min()))
+    return above * std, below * std
 
 
 @dataclass(frozen=True)
@@ -54,26 +108,41 @@ class DeadBand:
         least about this much."""
         return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
 
+    def _bias(self, force_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(nodes,) N each: the most a segment's mean reading lies above and below its force:
+        ``cell_reading_bias`` of one cell times its cells, above at ``NOISE_DOUBT`` times
+        its noise and below at its noise over ``NOISE_DOUBT`` (the worse of each)."""
+        cells = np.asarray(self.cells, float)
+        cell_std = np.broadcast_to(np.asarray(force_std, float) / np.sqrt(cells), cells.shape)
+        cell_threshold = np.broadcast_to(np.asarray(self.force, float) / cells, cells.shape)
+        quantum = float(self.quantum)
+        above = [cell_reading_bias(float(thr), NOISE_DOUBT * float(std), quantum)[0]
+                 for thr, std in zip(cell_threshold, cell_std)]
+        below = [cell_reading_bias(float(thr), float(std) / NOISE_DOUBT, quantum)[1]
+                 for thr, std in zip(cell_threshold, cell_std)]
+        return cells * np.array(above), cells * np.array(below)
+
     def excess(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the most a segment's reading exceeds its force on average, given
-        each segment's noise std (N): ``CLIPPED_NOISE_MEAN`` cell stds per cell plus half a
-        count. A cell reads at most its pressure plus the positive part of its noise, plus
-        half a count (a dead band or clipping only takes away), and x -> max(x, 0) is
-        1-Lipschitz, so the reading less this is at most the force plus zero-mean noise of
-        at most the segment's std: however the force spreads over the cells (only tension,
-        which reads nothing, is not pressure). A reading under the dead band that is
-        clearly above zero says the force was there (``fit.ReadingWindows``)."""
-        cells = np.asarray(self.cells, float)
-        return CLIPPED_NOISE_MEAN * np.sqrt(cells) * np.asarray(force_std, float) + 0.5 * cells * self.quantum
+        each segment's noise std (N), however the force spreads over its cells (only
+        tension, which reads nothing, is not pressure): each cell's most
+        (``cell_reading_bias``) times its cells. A reading under the dead band that is
+        clearly above zero says the force was there (``fit.ReadingWindows``); the tighter
+        this, the smaller a force under the band it reveals (a 300 Pa band at 100 Pa of
+        noise, 10 Pa counts: 2.8 Pa a cell, with the noise's doubt; 50 Pa when the noise is
+        clipped at zero)."""
+        return self._bias(force_std)[0]
 
-    @property
-    def deficit(self) -> np.ndarray:
-        """(nodes,) N: the most a segment's reading falls short of its force plus noise:
-        the threshold in every cell (a cell under it reads zero) and half a count. So the
-        mean of readings plus this is at least the mean force, less three stds of noise
-        (``fit.ReadingWindows``): with no dead band (the noise clipped at zero) the readings
-        bound the force from both sides."""
-        return np.asarray(self.force, float) + 0.5 * np.asarray(self.cells, float) * self.quantum
+    def deficit(self, force_std: np.ndarray) -> np.ndarray:
+        """(nodes,) N: the most a segment's mean reading falls short of its force, given its
+        noise std (N), however the force spreads: so the mean of readings plus this is at
+        least the mean force, less three stds of noise (``fit.ReadingWindows``). A cell
+        under the band reads nothing most of the time, but its noise lifts it over the band
+        often enough that its mean reading falls short of its pressure by at most 1.45
+        noise stds (a band 3 stds up; 166 Pa for the band above, with the noise's doubt),
+        not by the whole band; with no dead band (the noise
+        clipped at zero) by about nothing, so the readings bound the force from both sides."""
+        return self._bias(force_std)[1]
 
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""

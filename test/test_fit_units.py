@@ -728,28 +728,40 @@ def test_a_model_whose_forces_overflow_gets_large_residuals_not_nan_or_zero():
 
 def test_reading_windows_put_each_windows_excess_at_its_readings():
     """``ReadingWindows``: a segment's readings that are not live, 25 at a time in time
-    order (a short last window), bound the window's mean force; a model below the floor
-    has the shortfall at every reading of that window, above the ceiling the excess, and a
-    model's pull counts as zero force against the floor (tension reads nothing)."""
+    order (a short last window) and 250 at a time, bound the window's mean force; a model
+    below the floor has the shortfall at every reading of that window, above the ceiling
+    the excess (of a reading's two windows the farther), and a model's pull counts as zero
+    force against the floor (tension reads nothing). A small force steady under the band
+    (0.05 N where one reading's noise is 0.1 N) is within every short window's margin and
+    outside the long windows'."""
     from rheo_ros.sensors import DeadBand
 
     band = DeadBand(force=np.array([1.0, 1.0]), cells=np.array([4.0, 4.0]))
-    readings = np.zeros((60, 2))
-    readings[:, 0] = 2.0                                   # 2 N read under a 1 N dead band ...
-    bounded = np.ones((60, 2), bool)
-    bounded[:10, 1] = False                                # ... segment 2: 50 readings, two windows
+    readings = np.zeros((500, 2))
+    readings[:60, 0] = 2.0                                 # 2 N read under a 1 N dead band ...
+    readings[:, 1] = 0.05                                  # ... and a steady 0.05 N
+    bounded = np.zeros((500, 2), bool)
+    bounded[:60, 0] = True                                 # segment 1: 60 readings, 25 + 25 + 10
+    bounded[:, 1] = True                                   # segment 2: 500, 20 short windows, 2 long
     std = np.array([0.1, 0.1])
     w = F.ReadingWindows(band, readings, bounded, std)
-    assert w.floor.size == 3 + 2                           # 25 + 25 + 10, then 25 + 25
+    assert (w.floor.size, w.long_floor.size) == (3 + 20, 1 + 2)
     margin_full, margin_short = 3 * 0.1 / 5, 3 * 0.1 / np.sqrt(10)
-    excess = band.excess(std)[0]
-    np.testing.assert_allclose(w.floor[:3], 2.0 - excess - [margin_full, margin_full, margin_short])
-    np.testing.assert_allclose(w.ceiling[:3], 2.0 + 1.0 + np.array([margin_full, margin_full, margin_short]))
-    force = np.zeros((60, 2))
+    excess, deficit = band.excess(std)[0], band.deficit(std)[0]
+    assert 0.0 < excess < 1e-3 and 0.0 < deficit < 1.0    # the cells' noise over a band 5 stds up
+    np.testing.assert_allclose(w.floor[:3], 2.0 - excess - np.array([margin_full, margin_full, margin_short]))
+    np.testing.assert_allclose(w.ceiling[:3], 2.0 + deficit + np.array([margin_full, margin_full, margin_short]))
+    # Long: the readings' own spread (none here) floored at a quarter of the noise.
+    np.testing.assert_allclose(w.long_floor[0], 2.0 - excess - 3 * 0.025 / np.sqrt(60))
+    force = np.zeros((500, 2))
     force[:25, 0] = -5.0                                    # a pull: zero force against the floor
     force[25:50, 0] = 10.0                                  # above the ceiling
     out = w.excess(force)
     np.testing.assert_allclose(out[:25, 0], -w.floor[0])
     np.testing.assert_allclose(out[25:50, 0], 10.0 - w.ceiling[1])
-    np.testing.assert_allclose(out[50:, 0], -w.floor[2])
-    assert np.all(out[:, 1] == 0.0)                         # readings of nothing: a model of none is within
+    np.testing.assert_allclose(out[50:60, 0], -w.floor[2])
+    assert np.all(out[60:, 0] == 0.0)                       # readings that bound nothing
+    assert np.all(w.floor[3:] < 0.0) and np.all(w.long_floor[1:] > 0.0)
+    np.testing.assert_allclose(out[:250, 1], -w.long_floor[1])   # a model of none: below the long floor
+    force[:, 1] = 0.05
+    assert np.all(w.excess(force)[:, 1] == 0.0)             # the force read: within every window

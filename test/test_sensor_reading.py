@@ -183,20 +183,22 @@ def test_a_push_read_only_at_saturation_is_refused_in_one_line(material, seed, p
 @pytest.mark.parametrize("spread", [0.0, 0.6])
 def test_a_readings_floor_holds_however_the_force_spreads_over_the_cells(spread):
     """``fit.ReadingWindows``: the least and the most mean force a window of readings under
-    the live threshold stands for (``DeadBand.excess``, ``DeadBand.deficit``). Cells (300 Pa dead band, 100 Pa noise, 10 Pa
-    steps) whose pressures differ by ``spread`` (0.6: 60 % apart, as the generator's
-    per-cell drift can be) around the band: the floor lies above the segment's true force
-    in at most 0.5 % of the windows (three stds of margin: ~0.13 % for a Gaussian mean;
-    measured 0 of 800 at each level); a force held at 300 Pa a cell (a held adhesion at
-    the band) has every window's floor above zero; and with no dead band (noise 200 Pa
-    clipped at zero) a force of 100 Pa a cell, under each reading's bound, has 99 % of the
-    windows' floors above zero."""
-    from rheo_ros.identification.fit import READING_WINDOW, ReadingWindows
+    the live threshold stands for (``DeadBand.excess``, ``DeadBand.deficit``). Cells (300 Pa
+    dead band, 100 Pa noise, 10 Pa steps) whose pressures differ by ``spread`` (0.6: 60 %
+    apart, as the generator's per-cell drift can be) from nothing to over the band: the
+    floor lies above the segment's true force, or the ceiling below it, in at most 0.5 % of
+    the windows, short or long (three stds of margin: ~0.13 % for a Gaussian mean; measured
+    0 of 800 short and 80 long windows at each level); with nothing pressing no floor is
+    above zero (no force where there is none); a force of 100 Pa a cell (a third of the band:
+    a held adhesion whose readings are nearly all zero) has every long window's floor above
+    zero, 150 Pa every short one's; and with no dead band (noise 200 Pa clipped at zero) a
+    force of 50 Pa a cell, a quarter of the noise, has every long window's floor above zero."""
+    from rheo_ros.identification.fit import LONG_WINDOW, READING_WINDOW, ReadingWindows
 
     rng = np.random.default_rng(3)
     frames = 800 * READING_WINDOW
-    for array, level in [(TactileArray(), level) for level in (150.0, 300.0, 430.0, 550.0)] + \
-            [(TactileArray(noise=200.0, threshold=0.0, resolution=0.0), 100.0)]:
+    for array, level in [(TactileArray(), level) for level in (0.0, 50.0, 100.0, 150.0, 212.0, 300.0, 430.0, 550.0)] \
+            + [(TactileArray(noise=200.0, threshold=0.0, resolution=0.0), level) for level in (0.0, 50.0)]:
         band = array.dead_band
         cells = int(band.cells[2])
         seg_std = np.sqrt(cells) * array.noise * array.cell_area   # N: the segment's noise
@@ -210,12 +212,49 @@ def test_a_readings_floor_holds_however_the_force_spreads_over_the_cells(spread)
         bounded = np.zeros(reading.shape, bool)
         bounded[:, 2] = True
         truth = pressure.sum() * array.cell_area
-        std = np.full(array.nodes, seg_std)
-        windows = ReadingWindows(band, reading, bounded, std)
-        floor, ceiling = windows.floor, windows.ceiling
-        assert floor.size == 800 and np.mean(floor > truth) <= 0.005, (level, np.mean(floor > truth))
-        assert np.mean(ceiling < truth) <= 0.005, (level, np.mean(ceiling < truth))
-        if level == 300.0:
-            assert np.all(floor > 0.0)
-        if array.threshold == 0.0 and spread == 0.0:
-            assert np.mean(floor > 0.0) >= 0.99, np.mean(floor > 0.0)
+        windows = ReadingWindows(band, reading, bounded, np.full(array.nodes, seg_std))
+        assert windows.floor.size == 800 and windows.long_floor.size == frames // LONG_WINDOW
+        for floor, ceiling in ((windows.floor, windows.ceiling), (windows.long_floor, windows.long_ceiling)):
+            assert np.mean(floor > truth) <= 0.005, (level, np.mean(floor > truth))
+            assert np.mean(ceiling < truth) <= 0.005, (level, np.mean(ceiling < truth))
+            if level == 0.0:
+                assert np.all(floor <= 0.0)
+        if array.threshold == 300.0 and level == 100.0:
+            assert np.all(windows.long_floor > 0.0)
+        if array.threshold == 300.0 and level == 150.0:
+            assert np.all(windows.floor > 0.0)
+        if array.threshold == 0.0 and level == 50.0:
+            assert np.all(windows.long_floor > 0.0)
+
+
+def test_a_cells_reading_bias_is_its_noise_over_the_band_and_no_more():
+    """``sensors.cell_reading_bias``: the most a cell's mean reading lies above or below its
+    pressure. Without counts, the closed forms (phi(t) above; below, the minimum of
+    phi(a) + (a - t) Phi(a), 1.448 stds for a band 3 stds up; clipped at zero, phi(0) and
+    nothing); with 10 Pa counts under 100 Pa of noise within 0.1 Pa of a Monte Carlo of both
+    band rules (the band on the value or on the count) over pressures from 0 to 600 Pa; a
+    noise-free cell, half a count and the whole band."""
+    from scipy.stats import norm
+
+    from rheo_ros.sensors import cell_reading_bias
+
+    above, below = cell_reading_bias(300.0, 100.0, 0.0)
+    assert above == pytest.approx(100.0 * norm.pdf(3.0), rel=1e-3)
+    assert below == pytest.approx(144.8, abs=0.1)
+    assert cell_reading_bias(0.0, 100.0, 0.0) == pytest.approx((100.0 * norm.pdf(0.0), 0.0), abs=1e-3)
+    assert cell_reading_bias(300.0, 0.0, 10.0) == (5.0, 305.0)
+    above, below = cell_reading_bias(300.0, 100.0, 10.0)
+    rng = np.random.default_rng(5)
+    noise = 100.0 * rng.standard_normal(2_000_000)
+    most_above = most_below = 0.0
+    for p in np.arange(0.0, 600.0, 5.0):
+        x = p + noise
+        counted = 10.0 * np.round(x / 10.0)
+        for read in (np.where(x >= 300.0, counted, 0.0), np.where(counted >= 300.0, counted, 0.0)):
+            bias = read.mean() - p
+            most_above, most_below = max(most_above, bias), max(most_below, -bias)
+    # Monte Carlo's own std at the extremes: ~0.01 Pa at p = 0, ~0.1 Pa near the band.
+    assert most_above <= above + 0.05 and above - most_above < 0.1, (above, most_above)
+    assert most_below <= below + 0.3 and below - most_below < 0.5, (below, most_below)
+
+

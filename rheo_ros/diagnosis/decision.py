@@ -203,16 +203,28 @@ def _excess(chi: float, n: int) -> float:
     return (chi - n) / np.sqrt(2.0 * n) if n else 0.0
 
 
+def held_ranges(fit: ModelFit) -> dict[str, tuple[float, float]]:
+    """The parameters of ``fit`` only readings under the dead band hold, with their ranges
+    (``FitStatistics.ranges``)."""
+    stats = fit.estimate.statistics
+    return dict(stats.ranges) if stats is not None else {}
+
+
 def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMINED_STD) -> list[str]:
     """The effect's parameters in ``fit`` that the data do not pin down. A positive one
     (fitted on a log scale) needs a finite std within ``relative_limit`` of its value: run
-    off to a bound, it has a std but no value. A signed one has no bound and zero is one
+    off to a bound, it has a std but no value. One held in a range by readings under the
+    dead band (``held_ranges``) is pinned down by the range itself, however wide: the
+    floor of the range says the effect is there (a held adhesion the cells show only by
+    how often their noise crosses the band), its ceiling how much it can be. A signed one has no bound and zero is one
     of its values (a drift with no offset): it needs a finite std, and the signed ones
     together need one of them away from zero by more than that, else all are listed."""
     values, std = fit.estimate.params, fit.estimate.std
+    ranged = held_ranges(fit)
     own = [k for k in values if k.startswith(effect_id + ".")]
     signed = [k for k in own if k in set(fit.model.signed_parameters)]
-    out = [k for k in own if k not in signed and not is_determined(values[k], std[k], relative_limit)]
+    out = [k for k in own if k not in signed and not (k in ranged and np.isfinite(std[k]))
+           and not is_determined(values[k], std[k], relative_limit)]
     if signed and (not all(np.isfinite(std[k]) for k in signed)
                    or not any(is_determined(values[k], std[k], relative_limit) for k in signed)):
         out += signed

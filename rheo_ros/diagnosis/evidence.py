@@ -7,7 +7,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, EXCESS_EXPLAINED, EXCESS_SIGMAS, Candidate, undetermined
+from rheo_ros.diagnosis.decision import (
+    BIC_DECISIVE,
+    EXCESS_EXPLAINED,
+    EXCESS_SIGMAS,
+    Candidate,
+    held_ranges,
+    undetermined,
+)
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import StageProfile
 from rheo_ros.identification.estimate import Estimate
@@ -51,6 +58,11 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
             f"Adding {missing} ({effect.form} form: {effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
             f"{current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows}) and removes "
             f"{100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
+        ranged = {k: r for k, r in held_ranges(c.fit).items() if k.startswith(missing + ".")}
+        if ranged:
+            spans = "; ".join(f"{k.split('.', 1)[1]} between {lo:.3g} and {hi:.3g}" for k, (lo, hi) in ranged.items())
+            parts.append(f"Only readings under the dead band show it: they hold its {spans} (the middle "
+                         f"reported, half the range as its std).")
         loose = undetermined(c.fit, missing, 0.5)
         if loose:
             names = " and ".join(k.split(".", 1)[1] for k in loose)

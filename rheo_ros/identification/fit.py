@@ -6,7 +6,7 @@ problem, the best any unbiased estimator can do on such data.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.differentiate import jacobian
@@ -55,6 +55,12 @@ MISFIT_SIGMAS = 5.0
 # Readings under the live threshold averaged into one pair of bounds (``ReadingWindows``): as
 # many as the live rule's window (``noise.LIVE_WINDOW``), half a second at 50 Hz.
 READING_WINDOW = 25
+# Readings of a segment under the band in a long window (five seconds at 50 Hz): a force
+# steady there (a held adhesion) shows in their mean to a tenth of what a short window's
+# margin lets through. Their margin is their own spread, never under this share of the
+# live noise (a window all zero by chance says no more than a short one).
+LONG_WINDOW = 250
+LONG_MARGIN_FLOOR = 0.25
 OVERFLOW_RESIDUAL = 1e6   # noise stds: a residual of a model whose forces overflowed
 
 
@@ -215,14 +221,17 @@ def bounds(record: Record, force_std: np.ndarray) -> dict[str, np.ndarray | None
 
 
 class ReadingWindows:
-    """What readings under the live threshold say of the force: in windows of
-    ``READING_WINDOW`` of a segment's such readings in a row, the mean force lies within
-    three stds of the window's mean reading, less the most a reading exceeds its force
-    (``DeadBand.excess``: the clipped noise) and plus the most it falls short of it
-    (``DeadBand.deficit``: the dead band). Means, not each reading: a held adhesion of 100
-    Pa a cell under 600 Pa of live threshold and 200 Pa of noise is inside any one
-    reading's bounds but not a window's. A saturated reading has its own bound (the top)
-    and is in no window.
+    """What readings under the live threshold say of the force: in windows of a segment's
+    such readings in a row, the mean force lies within three stds of the window's mean
+    reading, less the most a reading exceeds its force (``DeadBand.excess``) and plus the
+    most it falls short of it (``DeadBand.deficit``), whatever the force's spread over the
+    cells. Means, not each reading: a held adhesion of 100 Pa a cell under 600 Pa of live
+    threshold is inside any one reading's bounds but not a window's. Two sizes:
+    ``READING_WINDOW`` readings (a bound that moves with the model: the noise's std as
+    margin, safe for windows of a few readings that are all zero) and ``LONG_WINDOW``
+    (a force steady under the band for seconds: the readings' own std as margin, tens of
+    times smaller than the live noise where most cells read nothing). A saturated reading
+    has its own bound (the top) and is in no window.
 
     Args:
         band: the dead band; readings: (T, nodes) N; bounded: (T, nodes) the readings
@@ -235,33 +244,53 @@ class ReadingWindows:
         std0 = np.nan_to_num(std)
         use = bounded & (readings <= band.top(std0)) & np.isfinite(std)[None]
         seg, self._t = np.nonzero(use.T)   # by segment, then in time
-        nodes = readings.shape[1]
-        first = np.searchsorted(seg, np.arange(nodes))
-        windows = -(-np.bincount(seg, minlength=nodes) // READING_WINDOW)
-        self._label = (np.concatenate([[0], np.cumsum(windows)[:-1]])[seg]
-                       + (np.arange(seg.size) - first[seg]) // READING_WINDOW)
         self._seg, self.shape = seg, readings.shape
-        self._size = np.bincount(self._label).astype(float)
-        window_seg = np.zeros(self._size.size, int)
-        window_seg[self._label] = seg
-        # Every window holds at least one reading (a segment's count is split by ceiling).
-        mean = np.bincount(self._label, weights=readings[self._t, seg]) / self._size
+        values = readings[self._t, seg]
+        excess, deficit = band.excess(std0), band.deficit(std0)
+        self._label, self._size, window_seg = self._windows(seg, readings.shape[1], READING_WINDOW)
+        mean = np.bincount(self._label, weights=values) / self._size
         margin = 3.0 * std0[window_seg] / np.sqrt(self._size)
-        self.floor = mean - band.excess(std0)[window_seg] - margin
-        self.ceiling = mean + band.deficit[window_seg] + margin
+        self.floor = mean - excess[window_seg] - margin
+        self.ceiling = mean + deficit[window_seg] + margin
+        self._long_label, self._long_size, long_seg = self._windows(seg, readings.shape[1], LONG_WINDOW)
+        mean = np.bincount(self._long_label, weights=values) / self._long_size
+        spread = np.sqrt(np.bincount(self._long_label, weights=(values - mean[self._long_label]) ** 2)
+                         / np.maximum(self._long_size - 1.0, 1.0))
+        margin = 3.0 * np.maximum(spread, LONG_MARGIN_FLOOR * std0[long_seg]) / np.sqrt(self._long_size)
+        self.long_floor = mean - excess[long_seg] - margin
+        self.long_ceiling = mean + deficit[long_seg] + margin
+
+    @staticmethod
+    def _windows(seg: np.ndarray, nodes: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each reading's window (``size`` of a segment's readings in a row, the last one
+        short), each window's size and segment."""
+        first = np.searchsorted(seg, np.arange(nodes))
+        windows = -(-np.bincount(seg, minlength=nodes) // size)
+        label = (np.concatenate([[0], np.cumsum(windows)[:-1]])[seg] + (np.arange(seg.size) - first[seg]) // size)
+        # Every window holds at least one reading (a segment's count is split by ceiling).
+        count = np.bincount(label).astype(float)
+        window_seg = np.zeros(count.size, int)
+        window_seg[label] = seg
+        return label, count, window_seg
+
+    @staticmethod
+    def _outside(f: np.ndarray, label: np.ndarray, size: np.ndarray, floor: np.ndarray,
+                 ceiling: np.ndarray) -> np.ndarray:
+        mean = np.bincount(label, weights=f) / size
+        pressing = np.bincount(label, weights=np.maximum(f, 0.0)) / size
+        return (np.maximum(mean - ceiling, 0.0) + np.minimum(pressing - floor, 0.0))[label]
 
     def excess(self, force: np.ndarray) -> np.ndarray:
         """(T, nodes) N: at each reading in a window, how far the window's mean model force
-        lies above its ceiling (positive) or below its floor (negative); 0 within them and
-        at the other readings. Against the floor a model's pull counts as zero force
-        (tension reads nothing)."""
+        lies above its ceiling (positive) or below its floor (negative), of its two windows
+        the farther; 0 within them and at the other readings. Against the floor a model's
+        pull counts as zero force (tension reads nothing)."""
         out = np.zeros(self.shape)
         if self._t.size:
             f = force[self._t, self._seg]
-            mean = np.bincount(self._label, weights=f) / self._size
-            pressing = np.bincount(self._label, weights=np.maximum(f, 0.0)) / self._size
-            out[self._t, self._seg] = (np.maximum(mean - self.ceiling, 0.0)
-                                       + np.minimum(pressing - self.floor, 0.0))[self._label]
+            short = self._outside(f, self._label, self._size, self.floor, self.ceiling)
+            long = self._outside(f, self._long_label, self._long_size, self.long_floor, self.long_ceiling)
+            out[self._t, self._seg] = np.where(np.abs(long) > np.abs(short), long, short)
         return out
 
 
@@ -307,6 +336,9 @@ class FitStatistics:
             dropped), comparable between fits that estimated their own weights.
         dof: residual degrees of freedom; free_parameters: parameters fitted (offsets included).
         passes: weighted solves; message: the solver's.
+        ranges: parameter -> (low, high): the ones only readings under the dead band hold,
+            within the range over which the cost stays within 1 of its least (no slope at
+            the fit to take a std from: the middle is the value, half the range its std).
     """
 
     signals: tuple[str, ...]
@@ -324,6 +356,7 @@ class FitStatistics:
     free_parameters: int
     passes: int
     message: str
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def readings(self) -> int:
@@ -572,6 +605,7 @@ def fit_record(
     cost = float(sol.fun @ sol.fun)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
+    held: dict[str, tuple[float, float]] = {}
     if problem.ceiling is not None and problem.window_std is not None:
         # A parameter no live reading and no marker moves is held by the bounds alone: a
         # hinge barely active at the fit gives it a slope, and a std, that say nothing.
@@ -587,6 +621,9 @@ def fit_record(
         if ranges and all(r is not None for r in ranges):
             for i, (middle, half_width) in zip(only, ranges):   # the middle, half the width as std
                 sol.x[i], cov_x[i, i], loose[i] = middle, half_width**2, False
+                ends = [pmap.values(np.where(np.arange(sol.x.size) == i, middle + side * half_width, sol.x))[i]
+                        for side in (-1.0, 1.0)]
+                held[names[i]] = (float(min(ends)), float(max(ends)))
         params = unpack(sol.x)
     slope = pmap.slope(sol.x)
     cov = np.zeros((len(all_names), len(all_names)))
@@ -601,8 +638,8 @@ def fit_record(
         sys_std, force_floor, marker_floor = _discretisation_std(problem, params, at_fit, sol, loose, slope)
         cov[free, free] += np.where(loose, 0.0, sys_std**2)
         floor = np.hypot(floor, np.append(force_floor, marker_floor))
-    stats = _statistics(problem, noise, params, cov, all_names, names, dict(zip(names, sys_std.tolist())),
-                        at_fit, cost, dof, passes, sol.message, floor)
+    stats = replace(_statistics(problem, noise, params, cov, all_names, names, dict(zip(names, sys_std.tolist())),
+                                at_fit, cost, dof, passes, sol.message, floor), ranges=held)
     physical = [i for i, n in enumerate(all_names) if n not in DELAYS]
     edge = [n for n, flag in zip(names, loose) if flag]
     return Estimate(
