@@ -121,6 +121,14 @@ def test_thresholds_per_family_and_form_come_from_single_effect_bags():
     assert set(per) == {"adhesion", "adhesion:fading", "adhesion:held"}
     assert per["adhesion"]["threshold"] == 2.0 and per["adhesion"]["bags_below"] == 2
     assert per["adhesion:fading"]["threshold"] == 2.0 and per["adhesion:held"]["threshold"] == 4.0
+    # Wholly under the dead band: readable 0, whole 6: never above a readable threshold, and
+    # found by the whole size's.
+    under = _row([("adhesion", "held", 6.0)], ["adhesion"])
+    under["hidden"][0]["size_live"] = 0.0
+    assert diagnosis.thresholds(rows + [under], 0.95)["adhesion"]["threshold"] == 2.0
+    whole = diagnosis.thresholds(rows + [under], 0.95, "size", forms=False)
+    assert set(whole) == {"adhesion"} and whole["adhesion"]["threshold"] == 2.0
+    assert (whole["adhesion"]["bags_above"], whole["adhesion"]["correct_above"]) == (3, 3)
 
 
 def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():

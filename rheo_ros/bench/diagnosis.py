@@ -398,15 +398,17 @@ def detection_threshold(items: Iterable[tuple[float, bool]], target: float) -> d
             "bags_below": len(ordered), "correct_below": int(correct.sum())}
 
 
-def thresholds(rows: list[dict[str, Any]], target: float) -> dict[str, dict[str, Any]]:
-    """:func:`detection_threshold` of exact-set correctness against the readable size,
-    over the single-effect bags of each family, and of each form (``family:form``)."""
+def thresholds(rows: list[dict[str, Any]], target: float, size: str = "size_live",
+               forms: bool = True) -> dict[str, dict[str, Any]]:
+    """:func:`detection_threshold` of exact-set correctness against the readable size (or
+    ``size``: ``size``, the whole, with what the dead band hides), over the single-effect
+    bags of each family, and of each form (``family:form``) with ``forms``."""
     single = [r for r in rows if r["hidden"] and len(r["hidden"]) == 1]
     groups: dict[str, list[tuple[float, bool]]] = {}
     for r in single:
         h = r["hidden"][0]
-        item = (h["size_live"], r["outcome"] == "exact")
-        for key in (h["effect"], f"{h['effect']}:{h['form']}"):
+        item = (h[size], r["outcome"] == "exact")
+        for key in (h["effect"], f"{h['effect']}:{h['form']}") if forms else (h["effect"],):
             groups.setdefault(key, []).append(item)
     return {key: detection_threshold(items, target) for key, items in sorted(groups.items())}
 
@@ -460,6 +462,9 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "target": target,
         "by_hidden": {n: _accuracy([r for r in rows if len(r["hidden"]) == n]) for n in (0, 1, 2)},
         "thresholds": per,
+        # An effect wholly under the dead band has a readable size of 0 and is never above
+        # a readable threshold: the whole size says how far below the band it is still found.
+        "thresholds_whole": thresholds(rows, target, "size", forms=False),
         "threshold_weakest": detection_threshold(weakest, target),
         "above": _accuracy(above), "below": _accuracy(below),
         "forms": forms,
@@ -653,6 +658,10 @@ def format_table(result: dict[str, Any]) -> str:
                  "single-effect bags):")
     lines += [_threshold_line(key, th) for key, th in result["thresholds"].items()]
     lines.append(_threshold_line("any bag, by its weakest effect", result["threshold_weakest"]))
+    if "thresholds_whole" in result:
+        lines.append("by the whole size (with what the dead band hides): " + "; ".join(
+            f"{key} {'none' if th['threshold'] is None else format(th['threshold'], '.3g')} "
+            f"({th['correct_above']}/{th['bags_above']} exact above)" for key, th in result["thresholds_whole"].items()))
     lines.append(f"bags with every effect above its family's threshold: {_fraction(result['above']['exact'], result['above']['bags'])} "
                  f"exact; below: {_fraction(result['below']['exact'], result['below']['bags'])}")
     lines.append(f"forms, where the family was named: {_fraction(result['forms_right'], result['forms_named'])} right "
