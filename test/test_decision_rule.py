@@ -32,7 +32,7 @@ class Fit:
     def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
                  forms=None, signed=()):
         self.chi, self.bic, self.rmse_force, self.forms = chi, bic, rmse, forms or {}
-        self.estimate = SimpleNamespace(params=params or {}, std=std or {})
+        self.estimate = SimpleNamespace(params=params or {}, std=std or {}, statistics=None)
         self.model = SimpleNamespace(signed_parameters=tuple(signed))
         self.asked: list[tuple[str, ...]] = []
 
@@ -216,6 +216,19 @@ def test_an_effect_parameter_is_determined_within_its_own_value(std, determined)
     assert c.eligible is determined
 
 
+@pytest.mark.parametrize("std, determined", [(0.036, True), (np.inf, False)])
+def test_a_parameter_only_readings_under_the_band_hold_is_determined_by_its_range(std, determined):
+    """A held adhesion's fraction between 0.011 and 0.097 (``FitStatistics.ranges``): its
+    std (half the range, on its log scale) above its value does not make it undetermined;
+    a range with no finite std (open on one side) does."""
+    params = {"E": 1.0, "adhesion.fraction": 0.033}
+    current, with_effect = pair(400.0, 220.0, params=params, std={"E": 0.1, "adhesion.fraction": std})
+    with_effect.estimate.statistics = SimpleNamespace(ranges={"adhesion.fraction": (0.011, 0.097)})
+    assert decision.undetermined(with_effect, "adhesion") == ([] if determined else ["adhesion.fraction"])
+    with_effect.estimate.statistics = None
+    assert decision.undetermined(with_effect, "adhesion") == ["adhesion.fraction"]
+
+
 def test_only_the_effects_own_parameters_decide_determined():
     # Another effect's loose parameter, and a base parameter's, do not count.
     params = {"E": 1.0, "c2": 5.0, "adhesion.force": 2.0, "relaxation_branch.stiffness": 3.0,
@@ -315,7 +328,7 @@ def test_collapsed_names_what_an_added_effect_took_from_the_base_model():
     """A parameter the base determined and the model with the effect leaves at a bound
     (infinite std), and a Voigt time c1/E under the sampling interval."""
     def fit(params, std):
-        return SimpleNamespace(estimate=SimpleNamespace(params=params, std=std))
+        return SimpleNamespace(estimate=SimpleNamespace(params=params, std=std, statistics=None))
 
     base = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33}, {"E": 10.0, "c1": 100.0, "c2": 1e5, "gamma": 1e-3})
     whole = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33},
