@@ -96,6 +96,9 @@ def test_a_merged_run_scores_its_old_rows_as_a_new_run_would():
     assert diagnosis._rescored(broken)["outcome"] == "failed"
     assert diagnosis._rescored(unexplained)["outcome"] == "unexplained"
     assert diagnosis._rescored({**unexplained, "explained": True})["outcome"] == "exact"
+    # A refusal of this code stays one: nothing named is no clean answer.
+    refused = {**_row([]), "outcome": "refused", "message": "RecordError: bag: /tactile/pressure: saturated"}
+    assert diagnosis._rescored(refused)["outcome"] == "refused"
 
 
 def test_the_threshold_is_the_smallest_size_above_which_the_target_is_exact():

@@ -568,8 +568,8 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
 def _rescored(row: dict[str, Any]) -> dict[str, Any]:
     """A row of a run made before ``refused`` and ``unexplained`` existed, scored as
     ``run_bag`` now does."""
-    if row["hidden"] is None or row.get("outside"):
-        return row
+    if row["hidden"] is None or row.get("outside") or row["outcome"] == "refused":
+        return row   # a refusal has no analysis to score again
     if row["outcome"] == "failed":
         refused = row["message"].split(":")[0] in {e.__name__ for e in REFUSALS}
         return {**row, "outcome": "refused"} if refused else row
