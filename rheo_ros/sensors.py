@@ -70,7 +70,7 @@ def cell_reading_bias(threshold: float, std: float, step: float) -> tuple[float,
     above = below = 0.0
     for chunk in np.array_split(p, max(1, p.size // 64)):
         x = chunk[:, None] + z[None]
-        counted = s * np.round(x / s) if s > 0.0 else x
+        counted = s * np.round(x / s)
         for read in (np.where(x >= t, counted, 0.0), np.where(counted >= t, counted, 0.0)):
             bias = read @ weight - chunk
             above, below = max(above, float(bias.max())), max(below, float(-bias.min()))
@@ -129,7 +129,7 @@ class DeadBand:
         (``cell_reading_bias``) times its cells. A reading under the dead band that is
         clearly above zero says the force was there (``fit.ReadingWindows``); the tighter
         this, the smaller a force under the band it reveals (a 300 Pa band at 100 Pa of
-        noise, 10 Pa counts: 2.8 Pa a cell, with the noise's doubt; 50 Pa when the noise is
+        noise, 10 Pa counts: 3.1 Pa a cell, with the noise's doubt; 50 Pa when the noise is
         clipped at zero)."""
         return self._bias(force_std)[0]
 
@@ -140,8 +140,8 @@ class DeadBand:
         under the band reads nothing most of the time, but its noise lifts it over the band
         often enough that its mean reading falls short of its pressure by at most 1.45
         noise stds (a band 3 stds up; 166 Pa for the band above, with the noise's doubt),
-        not by the whole band; with no dead band (the noise
-        clipped at zero) by about nothing, so the readings bound the force from both sides."""
+        not by the whole band; with no dead band (the noise clipped at zero) by about
+        nothing, so the readings bound the force from both sides."""
         return self._bias(force_std)[1]
 
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:

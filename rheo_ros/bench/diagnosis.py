@@ -563,8 +563,6 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
     }
 
 
-
-
 def _rescored(row: dict[str, Any]) -> dict[str, Any]:
     """A row of a run made before ``refused`` and ``unexplained`` existed, scored as
     ``run_bag`` now does."""

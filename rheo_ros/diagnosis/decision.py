@@ -216,9 +216,10 @@ def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMIN
     off to a bound, it has a std but no value. One held in a range by readings under the
     dead band (``held_ranges``) is pinned down by the range itself, however wide: the
     floor of the range says the effect is there (a held adhesion the cells show only by
-    how often their noise crosses the band), its ceiling how much it can be. A signed one has no bound and zero is one
-    of its values (a drift with no offset): it needs a finite std, and the signed ones
-    together need one of them away from zero by more than that, else all are listed."""
+    how often their noise crosses the band), its ceiling how much it can be. A signed one
+    has no bound and zero is one of its values (a drift with no offset): it needs a finite
+    std, and the signed ones together need one of them away from zero by more than that,
+    else all are listed."""
     values, std = fit.estimate.params, fit.estimate.std
     ranged = held_ranges(fit)
     own = [k for k in values if k.startswith(effect_id + ".")]

@@ -621,9 +621,10 @@ def fit_record(
         if ranges and all(r is not None for r in ranges):
             for i, (middle, half_width) in zip(only, ranges):   # the middle, half the width as std
                 sol.x[i], cov_x[i, i], loose[i] = middle, half_width**2, False
-                ends = [pmap.values(np.where(np.arange(sol.x.size) == i, middle + side * half_width, sol.x))[i]
-                        for side in (-1.0, 1.0)]
-                held[names[i]] = (float(min(ends)), float(max(ends)))
+                at_ends = np.repeat(sol.x[None], 2, axis=0)
+                at_ends[:, i] += [-half_width, half_width]
+                low, high = sorted(float(pmap.values(x)[i]) for x in at_ends)
+                held[names[i]] = (low, high)
         params = unpack(sol.x)
     slope = pmap.slope(sol.x)
     cov = np.zeros((len(all_names), len(all_names)))
