@@ -11,6 +11,10 @@ from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.sensors import DeadBand, SensorReading
 
+# s before the first contact that a frame counts as unloaded: the contact is read off the
+# stage's ramp (to a fraction of a sample), and a viscous specimen's force jumps there.
+UNLOADED_GUARD = 0.1
+
 
 class RecordError(ValueError):
     """A record cannot be analysed; the message names the source and the field."""
@@ -63,10 +67,18 @@ class Record:
             if not np.all(np.isfinite(a)):
                 raise RecordError(f"{self.source}: {name}: non-finite values")
 
-    @property
+    @cached_property
     def dead_band(self) -> DeadBand | None:
-        """Where the tactile segments' readings are live (``None``: everywhere)."""
-        return None if self.sensor is None else self.sensor.tactile.dead_band
+        """Where the tactile segments' readings are live (``None``: everywhere), with the
+        most a reading exceeds its force as the frames before the first contact show it
+        (``DeadBand.unloaded``)."""
+        band = None if self.sensor is None else self.sensor.tactile.dead_band
+        if band is None:
+            return None
+        profile = self.profile()
+        contact = min([p.t_pull_start for p in profile.before] + [profile.t_pull_start])
+        tactile = self.sensor.tactile
+        return band.unloaded(self.force[self.force_t < contact - UNLOADED_GUARD], tactile.noise * tactile.cell_area)
 
     def reading(self, force: np.ndarray) -> np.ndarray:
         """What the tactile segments read of model forces (T, n) in N: through the dead

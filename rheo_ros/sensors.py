@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property, lru_cache
 
 import numpy as np
-from scipy.special import erfc
+from scipy.special import erfc, gammaincinv
 
 MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
 # E[max(n, 0)] of a zero-mean Gaussian n over its std (1 / sqrt(2 pi)): the most a cell's
@@ -36,6 +36,10 @@ COARSE_STEPS = 4.0
 # 10 % high triples it at a 3-std band), and a sensor's noise may grow or lose its
 # Gaussian tails near zero.
 NOISE_DOUBT = 1.25
+# Frames of the unloaded array (before contact) that measure the excess in its stead
+# (``DeadBand.unloaded``), and the one-sided confidence of its bound (a Gaussian's 3 stds).
+MIN_UNLOADED = 20
+UNLOADED_CONFIDENCE = 0.99865
 
 
 @lru_cache(maxsize=256)
@@ -94,6 +98,9 @@ class DeadBand:
     # saturation, 1 / cells where one cell saturates alone (the others read on above it).
     clipping: np.ndarray | float = 1.0
     quantum: float = 0.0   # N: one count of one cell (the ADC's step times a cell's area)
+    # (nodes,) N: the most a segment's mean reading exceeds its force as the unloaded array
+    # shows it (``unloaded``); None: not measured, the noise's doubt stands in for it.
+    measured_excess: np.ndarray | None = None
 
     def threshold(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the smallest live segment force, given each segment's noise std
@@ -108,17 +115,17 @@ class DeadBand:
         least about this much."""
         return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
 
-    def _bias(self, force_std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _bias(self, force_std: np.ndarray, doubt: float = NOISE_DOUBT) -> tuple[np.ndarray, np.ndarray]:
         """(nodes,) N each: the most a segment's mean reading lies above and below its force:
-        ``cell_reading_bias`` of one cell times its cells, above at ``NOISE_DOUBT`` times
-        its noise and below at its noise over ``NOISE_DOUBT`` (the worse of each)."""
+        ``cell_reading_bias`` of one cell times its cells, above at ``doubt`` times its
+        noise and below at its noise over ``doubt`` (the worse of each)."""
         cells = np.asarray(self.cells, float)
         cell_std = np.broadcast_to(np.asarray(force_std, float) / np.sqrt(cells), cells.shape)
         cell_threshold = np.broadcast_to(np.asarray(self.force, float) / cells, cells.shape)
         quantum = float(self.quantum)
-        above = [cell_reading_bias(float(thr), NOISE_DOUBT * float(std), quantum)[0]
+        above = [cell_reading_bias(float(thr), doubt * float(std), quantum)[0]
                  for thr, std in zip(cell_threshold, cell_std)]
-        below = [cell_reading_bias(float(thr), float(std) / NOISE_DOUBT, quantum)[1]
+        below = [cell_reading_bias(float(thr), float(std) / doubt, quantum)[1]
                  for thr, std in zip(cell_threshold, cell_std)]
         return cells * np.array(above), cells * np.array(below)
 
@@ -130,8 +137,38 @@ class DeadBand:
         clearly above zero says the force was there (``fit.ReadingWindows``); the tighter
         this, the smaller a force under the band it reveals (a 300 Pa band at 100 Pa of
         noise, 10 Pa counts: 3.1 Pa a cell, with the noise's doubt; 50 Pa when the noise is
-        clipped at zero)."""
-        return self._bias(force_std)[0]
+        clipped at zero). Where the unloaded array measured it (``unloaded``), that, within
+        the value at this noise without the doubt (0.52 Pa a cell) and with it: a baseline
+        offset or a preload before contact is no noise, and leaves the doubt's bound."""
+        doubted = self._bias(force_std)[0]
+        if self.measured_excess is None:
+            return doubted
+        return np.clip(self.measured_excess, self._bias(force_std, doubt=1.0)[0], doubted)
+
+    def unloaded(self, readings: np.ndarray, cell_noise: float) -> DeadBand:
+        """This band with its excess measured on ``readings`` (T, nodes) N of the unloaded
+        array (before the first contact), each cell's noise ``cell_noise`` (N).
+
+        A cell's reading exceeds its pressure most at zero pressure (``cell_reading_bias``),
+        so readings at zero bound the excess at any pressure with no assumption on the
+        noise's tail; ``NOISE_DOUBT`` assumes one, and is 6 x larger than the value
+        for a 3-std band. Pooled over the cells (one per-cell mean, each segment its share):
+        the readings are the cells' crossings of the band, a Poisson count, bounded at
+        ``UNLOADED_CONFIDENCE`` (exact Poisson bound; with no crossing seen, 6.6 of them at
+        the band plus one noise). Fewer than ``MIN_UNLOADED`` frames: unchanged."""
+        readings = np.asarray(readings, float)
+        if readings.shape[0] < MIN_UNLOADED:
+            return self
+        cells = np.asarray(self.cells, float)
+        total, squares = float(np.sum(np.maximum(readings, 0.0))), float(np.sum(np.square(readings)))
+        # The crossings as a Poisson count of equal readings: their size the mean reading
+        # weighted by itself, their count the total over it (exact for equal crossings).
+        size = squares / total if total > 0.0 else float(np.max(np.asarray(self.force, float) / cells)) + cell_noise
+        if not size > 0.0:   # no noise, no band: nothing crosses, nothing to measure
+            return self
+        crossings = total / size
+        most = float(gammaincinv(crossings + 1.0, UNLOADED_CONFIDENCE))   # Poisson's upper bound
+        return replace(self, measured_excess=cells * size * most / (readings.shape[0] * cells.sum()))
 
     def deficit(self, force_std: np.ndarray) -> np.ndarray:
         """(nodes,) N: the most a segment's mean reading falls short of its force, given its

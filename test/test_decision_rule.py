@@ -55,7 +55,11 @@ def pair(chi_before, chi_after, n=200, delta=-50.0, phase="keep", params=None, s
 def test_excess_is_the_chi_square_over_its_expectation_in_its_stds():
     assert _excess(120.0, 50) == pytest.approx(7.0)          # (120 - 50) / sqrt(100)
     assert _excess(32.0, 50) == pytest.approx(-1.8)
-    assert _excess(7.0, 0) == 0.0                            # no readings: no excess
+    assert _excess(0.0, 0.0) == 0.0                          # nothing counted: no excess
+    # Bins of bounds alone expect nothing; a model outside them misfits by its whole
+    # chi-square, in the std of one bin's.
+    assert _excess(7.0, 0.0) == pytest.approx(7.0 / np.sqrt(2.0))
+    assert _excess(7.0, 0.5) == pytest.approx(6.5 / np.sqrt(2.0))
 
 
 def test_finite_keeps_numbers_and_drops_nan_and_inf():

@@ -7,7 +7,7 @@ import pytest
 from conftest import BAGS
 
 from rheo_ros.config.setup import Setup
-from rheo_ros.diagnosis.compare import compare, ljung_box_p, systematic_windows
+from rheo_ros.diagnosis.compare import binned_chi_square, compare, ljung_box_p, systematic_windows
 from rheo_ros.identification.closed_form import from_final_displacement
 from rheo_ros.identification.fit import fit_record
 from rheo_ros.io.bag import read_bag
@@ -39,6 +39,22 @@ def test_a_window_stands_out_only_where_the_mean_leaves_the_noise():
     r[(t > 8) & (t < 12)] += 1.0   # one noise std for 4 s: 7 stds of a 1 s mean
     (start, end), = systematic_windows(t, r, 1.0)
     assert 7.0 < start < 9.0 and 11.0 < end < 13.0
+
+
+def test_a_bin_of_bounds_expects_no_chi_square_and_counts_all_it_has():
+    """``binned_chi_square``: 1-s bins of white noise (std 2, 50 readings a bin) expect one
+    each and give chi-square(20) (within 5 of its std); a bin of a bound's excess (no
+    noise) expects nothing, so a model 0.3 std outside its bounds for 10 s counts its
+    whole 45 = 10 x 50 x 0.3^2, over an expectation of 0; a bin half of bounds, half."""
+    rng = np.random.default_rng(2)
+    t = np.arange(1000) / 50.0
+    chi, expected = binned_chi_square(t, 2.0 * rng.standard_normal((1000, 1)), 2.0)
+    assert expected == 20.0 and abs(chi - 20.0) < 5.0 * np.sqrt(40.0)
+    outside = np.full((500, 1), 0.6)
+    chi, expected = binned_chi_square(t[:500], outside, 2.0, noisy=np.zeros(500, bool))
+    assert (chi, expected) == (pytest.approx(45.0), 0.0)
+    half = np.arange(500) % 50 < 25
+    assert binned_chi_square(t[:500], outside, 2.0, noisy=half)[1] == pytest.approx(5.0)
 
 
 def test_a_right_model_leaves_white_residuals_at_the_noise_in_every_phase():

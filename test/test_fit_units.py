@@ -41,7 +41,7 @@ def with_band(record: Record, band) -> Record:
     """``record`` read through a dead band of any per-segment forces: a sensor stand-in
     (``Record.dead_band`` is its tactile array's)."""
     from types import SimpleNamespace
-    return replace(record, sensor=SimpleNamespace(tactile=SimpleNamespace(dead_band=band)))
+    return replace(record, sensor=SimpleNamespace(tactile=SimpleNamespace(dead_band=band, noise=0.0, cell_area=1.0)))
 
 def tiny_record(truth=TRUTH, force_std=0.0, marker_std=0.0, seed=0, forward=None, tactile_delay=0.0, marker_dt=0.5):
     """A 3 x 3 plane block's record made by ``forward`` (default: the marker grid's own

@@ -258,3 +258,42 @@ def test_a_cells_reading_bias_is_its_noise_over_the_band_and_no_more():
     assert most_below <= below + 0.3 and below - most_below < 0.5, (below, most_below)
 
 
+
+
+def test_the_unloaded_array_measures_a_cells_excess_within_the_noises_doubt():
+    """``DeadBand.unloaded``: a second of the unloaded array (50 frames of the 192 cells at
+    zero pressure, 300 Pa band, 10 Pa counts) bounds the most a cell's mean reading exceeds
+    its pressure (``cell_reading_bias`` at the cells' true noise: at zero pressure the
+    noise's tail over the band). With the noise the live readings show (100 Pa) the bound
+    is the measured one, never under the truth in 500 draws and its median 0.95 Pa a cell
+    against the noise's doubt's 3.07 Pa (NOISE_DOUBT, 3.2 x looser); with cells 15 % noisier
+    near zero than the live readings show (truth 1.70 Pa) it covers the truth in all but
+    0.2 % of draws (a one-sided 3-std bound: 0.13 %; at most 0.5 % asserted); a baseline
+    offset before contact (200 Pa a cell) is no noise: the doubt's bound stands."""
+    from rheo_ros.sensors import NOISE_DOUBT, cell_reading_bias
+
+    array = TactileArray()
+    band, area = array.dead_band, array.cell_area
+    cells = band.cells.astype(int)
+    seg_std = np.sqrt(cells) * array.noise * area
+    doubted = band.excess(seg_std) / (cells * area)
+    assert doubted == pytest.approx(cell_reading_bias(300.0, NOISE_DOUBT * 100.0, 10.0)[0])
+    starts = np.concatenate([[0], np.cumsum(cells)[:-1]])
+    rng = np.random.default_rng(7)
+
+    def measured(noise: float, offset: float = 0.0) -> np.ndarray:
+        x = offset + noise * rng.standard_normal((50, cells.sum()))
+        read = np.where(x >= 300.0, 10.0 * np.round(x / 10.0), 0.0)
+        unloaded = band.unloaded(np.add.reduceat(read, starts, axis=1) * area, array.noise * area)
+        return unloaded.excess(seg_std) / (cells * area)
+
+    same = np.array([measured(100.0) for _ in range(500)])
+    assert np.all(same >= cell_reading_bias(300.0, 100.0, 10.0)[0])
+    assert np.median(same) < doubted[0] / 3.0
+    truth = cell_reading_bias(300.0, 115.0, 10.0)[0]
+    noisier = np.array([measured(115.0)[0] for _ in range(500)])
+    assert np.mean(noisier < truth) <= 0.005, np.mean(noisier < truth)
+    np.testing.assert_allclose(measured(100.0, offset=200.0), doubted)
+    assert band.unloaded(np.zeros((10, array.nodes)), array.noise * area) is band   # too few frames
+    exact = TactileArray(noise=0.0, threshold=0.0, resolution=0.0).dead_band   # noise-free, clipped at zero
+    assert exact.unloaded(np.zeros((50, array.nodes)), 0.0) is exact

@@ -66,7 +66,7 @@ class ResidualStats:
     whiteness_p: float
     windows: tuple[tuple[float, float], ...]
     binned_chi2: float = 0.0
-    bins: int = 0
+    bins: float = 0.0   # binned_chi2's expectation under the noise alone (``binned_chi_square``)
 
     @property
     def rms_over_noise(self) -> float:
@@ -108,11 +108,14 @@ def systematic_windows(t: np.ndarray, r: np.ndarray, noise: float) -> tuple[tupl
 
 
 def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
-                   profile: StageProfile, floor: float = 0.0) -> list[ResidualStats]:
+                   profile: StageProfile, floor: float = 0.0, noisy: np.ndarray | None = None) -> list[ResidualStats]:
     """Per-phase statistics of one signal's residuals ``r`` (T,) or (T, k) at times ``t``;
     a (T, k) signal (the markers' coordinates) is pooled over its columns. ``floor``: the
-    part of ``noise`` that is the model's own systematic floor (``SensorNoise.floored``)."""
+    part of ``noise`` that is the model's own systematic floor (``SensorNoise.floored``).
+    ``noisy`` (T,): the residuals that carry the noise (None: all); the others are a
+    bound's excess (``fit.bound_excess``), zero unless the model leaves the bound."""
     r2 = np.asarray(r, float).reshape(len(t), -1)
+    noisy = np.ones(len(t), bool) if noisy is None else np.asarray(noisy, bool)
     which = phase_of(t, profile)
     out = []
     for i, name in enumerate(PHASES):
@@ -122,7 +125,7 @@ def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
         x = r2[sel]
         series = x.mean(axis=1)   # markers: the mean over coordinates keeps a shared drift visible
         per_sample = noise / np.sqrt(x.shape[1])
-        binned_chi2, bins = binned_chi_square(t[sel], x, noise, floor)
+        binned_chi2, bins = binned_chi_square(t[sel], x, noise, floor, noisy[sel])
         out.append(ResidualStats(
             signal=signal, phase=name, samples=int(x.size), rms=float(np.sqrt(np.mean(x**2))),
             bias=float(x.mean()), noise=float(noise), whiteness_p=ljung_box_p(series),
@@ -131,18 +134,24 @@ def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
     return out
 
 
-def binned_chi_square(t: np.ndarray, x: np.ndarray, noise: float, floor: float = 0.0) -> tuple[float, int]:
+def binned_chi_square(t: np.ndarray, x: np.ndarray, noise: float, floor: float = 0.0,
+                      noisy: np.ndarray | None = None) -> tuple[float, float]:
     """Chi-square of the means of ``x`` (T, k) over ``BIN_S`` bins of ``t`` (T,), each
-    column apart, each mean over its std; and the bins x columns it counts (0, 0 without a
-    noise). Of ``noise`` per reading, the sensor's part averages down over a bin's readings
-    and the model's ``floor`` does not (a systematic error, the same through the bin)."""
+    column apart, each mean over its std; and its expectation under the noise alone (0, 0
+    without a noise). Of ``noise`` per reading, the sensor's part averages down over a
+    bin's readings and the model's ``floor`` does not (a systematic error, the same
+    through the bin). A bin expects its share of ``noisy`` readings (T,; None: all): a
+    bound's excess carries no noise, so a bin of them expects nothing, and a model that
+    leaves the bounds misfits there by the whole of its chi-square (counted as noise, a
+    held adhesion under the dead band was diluted to a 1.3-std excess by its own bins)."""
     if not noise > 0 or t.size == 0:
-        return 0.0, 0
+        return 0.0, 0.0
     label = np.floor((t - t[0]) / BIN_S).astype(np.int64)
     _, label, size = np.unique(label, return_inverse=True, return_counts=True)
     means = np.stack([np.bincount(label, weights=col) for col in x.T], axis=1) / size[:, None]
     variance = max(noise**2 - floor**2, 0.0) / size + floor**2
-    return float(np.sum(means**2 / variance[:, None])), int(means.size)
+    share = np.ones(size.size) if noisy is None else np.bincount(label, weights=noisy) / size
+    return float(np.sum(means**2 / variance[:, None])), float(share.sum() * x.shape[1])
 
 
 @dataclass(frozen=True)
@@ -189,7 +198,7 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
         rows = counted[:, j]
         if rows.sum() >= 3 and np.isfinite(noise.force_std[j]):
             stats += residual_stats(f"P{j + 1}", record.force_t[rows], rf[rows, j], noise.force_std[j], profile,
-                                    float(force_floor[j]))
+                                    float(force_floor[j]), live[rows, j])
     # The total: readings every segment has live (a bound's excess is no reading to sum).
     every = live.all(axis=1) & np.all(np.isfinite(noise.force_std))
     if every.sum() >= 3:

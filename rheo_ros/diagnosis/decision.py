@@ -198,9 +198,10 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def _excess(chi: float, n: int) -> float:
-    """A chi-square's excess over its expectation in units of its std (sqrt(2n))."""
-    return (chi - n) / np.sqrt(2.0 * n) if n else 0.0
+def _excess(chi: float, n: float) -> float:
+    """A chi-square's excess over its expectation ``n`` in units of its std (sqrt(2n), at
+    least that of one bin: bins of bounds alone expect nothing and may still misfit)."""
+    return (chi - n) / np.sqrt(2.0 * max(n, 1.0)) if chi > 0.0 or n > 0.0 else 0.0
 
 
 def held_ranges(fit: ModelFit) -> dict[str, tuple[float, float]]:

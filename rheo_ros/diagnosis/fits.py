@@ -81,13 +81,14 @@ class ModelFit:
     def comparison_samples(self, signal: str) -> int:
         return sum(s.samples for s in self.comparison.stats if s.signal == signal)
 
-    def phase_chi2(self, phases: Iterable[str], signals: Iterable[str] = ("force",)) -> tuple[float, int]:
+    def phase_chi2(self, phases: Iterable[str], signals: Iterable[str] = ("force",)) -> tuple[float, float]:
         """Chi-square of the residuals' means over ``compare.BIN_S`` bins in ``phases`` of
         ``signals`` (``force``: every segment's live readings; ``markers``: every marker
-        coordinate), and the bins it counts: white noise gives chi-square(bins), a misfit
-        that is smooth over a bin its whole chi-square (``ResidualStats.binned_chi2``)."""
+        coordinate), and its expectation under the noise (the bins of live readings): white
+        noise gives chi-square(bins), a misfit that is smooth over a bin its whole
+        chi-square (``ResidualStats.binned_chi2``)."""
         signals = set(signals)
-        chi, n = 0.0, 0
+        chi, n = 0.0, 0.0
         for s in self.comparison.stats:
             kind = "force" if s.signal.startswith("P") else s.signal
             if kind in signals and s.phase in phases and s.noise > 0:
