@@ -151,11 +151,13 @@ class DeadBand:
 
         A cell's reading exceeds its pressure most at zero pressure (``cell_reading_bias``),
         so readings at zero bound the excess at any pressure with no assumption on the
-        noise's tail; ``NOISE_DOUBT`` assumes one, and is 6 x larger than the value
-        for a 3-std band. Pooled over the cells (one per-cell mean, each segment its share):
-        the readings are the cells' crossings of the band, a Poisson count, bounded at
-        ``UNLOADED_CONFIDENCE`` (exact Poisson bound; with no crossing seen, 6.6 of them at
-        the band plus one noise). Fewer than ``MIN_UNLOADED`` frames: unchanged."""
+        noise's tail (``NOISE_DOUBT`` assumes one: for a 3-std band its bound is 6 x the
+        value at the stated noise). Pooled over the cells (one per-cell mean, each segment
+        its share): the readings are the cells' crossings of the band, a Poisson count,
+        bounded at ``UNLOADED_CONFIDENCE`` (exact Poisson bound; with no crossing seen, 6.6
+        of them at the band plus one noise; two cells of a segment crossing in one frame
+        count as one crossing twice the size, which only widens the bound). Fewer than
+        ``MIN_UNLOADED`` frames: unchanged."""
         readings = np.asarray(readings, float)
         if readings.shape[0] < MIN_UNLOADED:
             return self
