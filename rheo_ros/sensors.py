@@ -115,14 +115,16 @@ class DeadBand:
         least about this much."""
         return self.saturation - 3.0 * np.asarray(force_std) * np.sqrt(self.cells)
 
-    def _bias(self, force_std: np.ndarray, doubt: float = NOISE_DOUBT) -> tuple[np.ndarray, np.ndarray]:
+    def _bias(self, force_std: np.ndarray, doubt: float = NOISE_DOUBT,
+              counts: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(nodes,) N each: the most a segment's mean reading lies above and below its force:
         ``cell_reading_bias`` of one cell times its cells, above at ``doubt`` times its
-        noise and below at its noise over ``doubt`` (the worse of each)."""
+        noise and below at its noise over ``doubt`` (the worse of each); ``counts`` False:
+        as if the cells read continuous values (closed forms, no grid to compute)."""
         cells = np.asarray(self.cells, float)
         cell_std = np.broadcast_to(np.asarray(force_std, float) / np.sqrt(cells), cells.shape)
         cell_threshold = np.broadcast_to(np.asarray(self.force, float) / cells, cells.shape)
-        quantum = float(self.quantum)
+        quantum = float(self.quantum) if counts else 0.0
         above = [cell_reading_bias(float(thr), doubt * float(std), quantum)[0]
                  for thr, std in zip(cell_threshold, cell_std)]
         below = [cell_reading_bias(float(thr), float(std) / doubt, quantum)[1]
@@ -138,12 +140,13 @@ class DeadBand:
         this, the smaller a force under the band it reveals (a 300 Pa band at 100 Pa of
         noise, 10 Pa counts: 3.1 Pa a cell, with the noise's doubt; 50 Pa when the noise is
         clipped at zero). Where the unloaded array measured it (``unloaded``), that, within
-        the value at this noise without the doubt (0.52 Pa a cell) and with it: a baseline
-        offset or a preload before contact is no noise, and leaves the doubt's bound."""
+        the noise's own tail over the band (no doubt, no counts: 0.44 Pa a cell) and the
+        doubt's bound: a baseline offset or a preload before contact is no noise, and leaves
+        the doubt's bound."""
         doubted = self._bias(force_std)[0]
         if self.measured_excess is None:
             return doubted
-        return np.clip(self.measured_excess, self._bias(force_std, doubt=1.0)[0], doubted)
+        return np.clip(self.measured_excess, self._bias(force_std, doubt=1.0, counts=False)[0], doubted)
 
     def unloaded(self, readings: np.ndarray, cell_noise: float) -> DeadBand:
         """This band with its excess measured on ``readings`` (T, nodes) N of the unloaded

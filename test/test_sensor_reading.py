@@ -265,8 +265,8 @@ def test_the_unloaded_array_measures_a_cells_excess_within_the_noises_doubt():
     zero pressure, 300 Pa band, 10 Pa counts) bounds the most a cell's mean reading exceeds
     its pressure (``cell_reading_bias`` at the cells' true noise: at zero pressure the
     noise's tail over the band). With the noise the live readings show (100 Pa) the bound
-    is the measured one, never under the truth in 500 draws and its median 0.95 Pa a cell
-    against the noise's doubt's 3.07 Pa (NOISE_DOUBT, 3.2 x looser); with cells 15 % noisier
+    is the measured one, under the truth (0.52 Pa) in none of 500 draws, its median 0.95 Pa a
+    cell against the noise's doubt's 3.07 Pa (NOISE_DOUBT, 3.2 x looser); with cells 15 % noisier
     near zero than the live readings show (truth 1.70 Pa) it covers the truth in all but
     0.2 % of draws (a one-sided 3-std bound: 0.13 %; at most 0.5 % asserted); a baseline
     offset before contact (200 Pa a cell) is no noise: the doubt's bound stands."""
@@ -288,7 +288,7 @@ def test_the_unloaded_array_measures_a_cells_excess_within_the_noises_doubt():
         return unloaded.excess(seg_std) / (cells * area)
 
     same = np.array([measured(100.0) for _ in range(500)])
-    assert np.all(same >= cell_reading_bias(300.0, 100.0, 10.0)[0])
+    assert np.mean(same < cell_reading_bias(300.0, 100.0, 10.0)[0]) <= 0.005
     assert np.median(same) < doubted[0] / 3.0
     truth = cell_reading_bias(300.0, 115.0, 10.0)[0]
     noisier = np.array([measured(115.0)[0] for _ in range(500)])
