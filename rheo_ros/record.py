@@ -80,6 +80,23 @@ class Record:
         tactile = self.sensor.tactile
         return band.unloaded(self.force[self.force_t < contact - UNLOADED_GUARD], tactile.noise * tactile.cell_area)
 
+    def sensor_json(self) -> dict | None:
+        """The sensor model the analysis used (``SensorReading.to_json``), with the most a
+        cell's mean reading exceeds its pressure under the dead band (``tactile.excess``,
+        Pa a cell at the cells' noise: ``used``, and ``measured`` on the unloaded array
+        before contact or null where too few frames show it); None: no sensor."""
+        if self.sensor is None:
+            return None
+        sensor = self.sensor.to_json()
+        band, tactile = self.dead_band, self.sensor.tactile
+        if band is not None and np.isfinite(tactile.noise):
+            cells = np.asarray(band.cells, float)
+            per_cell = tactile.cell_area * cells   # a segment's N per Pa in each of its cells
+            used = band.excess(tactile.noise * tactile.cell_area * np.sqrt(cells)) / per_cell
+            measured = None if band.measured_excess is None else float(np.max(band.measured_excess / per_cell))
+            sensor["tactile"]["excess"] = {"used": float(np.max(used)), "measured": measured}
+        return sensor
+
     def reading(self, force: np.ndarray) -> np.ndarray:
         """What the tactile segments read of model forces (T, n) in N: through the dead
         band where the record has one (``DeadBand.reading``), else the forces."""

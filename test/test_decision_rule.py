@@ -20,8 +20,10 @@ from rheo_ros.diagnosis.decision import (
     Verdict,
     _excess,
     _finite,
+    choose,
     judge,
     leftover,
+    misfit_delta_bic,
 )
 
 
@@ -30,8 +32,8 @@ class Fit:
     estimate's values and std, the force RMS, the effects' forms, the signed parameters."""
 
     def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
-                 forms=None, signed=()):
-        self.chi, self.bic, self.rmse_force, self.forms = chi, bic, rmse, forms or {}
+                 forms=None, signed=(), samples: int = 1000):
+        self.chi, self.bic, self.rmse_force, self.forms, self.samples = chi, bic, rmse, forms or {}, samples
         self.estimate = SimpleNamespace(params=params or {}, std=std or {}, statistics=None)
         self.model = SimpleNamespace(signed_parameters=tuple(signed))
         self.asked: list[tuple[str, ...]] = []
@@ -85,8 +87,10 @@ def test_a_clear_effect_is_significant_with_every_figure_of_its_candidate():
                                                c.explained))
 
 
-def test_an_effect_is_judged_only_in_the_phases_it_shows_in():
-    # A huge misfit in the pull is no business of the keep's relaxation branch.
+def test_an_effect_is_judged_only_in_the_phases_it_shows_in(monkeypatch):
+    # A huge misfit in the pull is no business of the keep's relaxation branch (the
+    # ranking of eligible effects, ``misfit_delta_bic``, reads every phase: tested apart).
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
     current, with_effect = pair(400.0, 220.0, others=(1e6, 200))
     c = judge(current, with_effect, "relaxation_branch")
     assert set(current.asked) == {("keep",)} and set(with_effect.asked) == {("keep",)}
@@ -96,8 +100,9 @@ def test_an_effect_is_judged_only_in_the_phases_it_shows_in():
     assert set(current.asked) == {("release",)}
 
 
-def test_the_form_fitted_decides_where_the_effect_is_judged():
+def test_the_form_fitted_decides_where_the_effect_is_judged(monkeypatch):
     """A form of a family is judged in its own phases, and the candidate names it."""
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
     from dataclasses import dataclass
     from typing import ClassVar
 
@@ -254,8 +259,49 @@ def test_eligible_needs_both_significant_and_determined():
     assert Candidate(**base, significant=False, determined=True).eligible is False
 
 
-def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8, form="f"):
-    return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined, form=form)
+def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8, form="f", misfit=None):
+    return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined, form=form,
+                     misfit_delta_bic=delta if misfit is None else misfit)
+
+
+def test_the_bic_where_the_model_misfits_counts_each_gain_up_to_its_excess_and_each_loss_whole():
+    """``misfit_delta_bic``: keep 400 over an expectation of 200 -> 210 (gain 190, all of it
+    excess); pull 260 -> 230 (excess 60, gain 30, under 5 sd but excess all the same);
+    release 150 -> 100 (already under its expectation: fitting noise, no gain); markers
+    in the keep 90 -> 120 over 100 (a loss, counted whole); one parameter more over 1000
+    readings costs ln 1000."""
+    current = Fit({"keep": (400.0, 200), "pull": (260.0, 200), "release": (150.0, 200),
+                   ("markers", "keep"): (90.0, 100)}, bic=0.0, params={"E": 1.0})
+    better = Fit({"keep": (210.0, 200), "pull": (230.0, 200), "release": (100.0, 200),
+                  ("markers", "keep"): (90.0, 100)}, bic=-300.0, params={"E": 1.0, "x.a": 2.0})
+    assert misfit_delta_bic(current, better) == pytest.approx(np.log(1000.0) - 190.0 - 30.0)
+    worse_markers = Fit({**better.chi, ("markers", "keep"): (120.0, 100)}, bic=-280.0, params=better.estimate.params)
+    assert misfit_delta_bic(current, worse_markers) == pytest.approx(np.log(1000.0) - 220.0 + 30.0)
+    # A gain past the excess counts the excess only: keep 400 -> 150 gains 200, not 250.
+    past = Fit({**better.chi, "keep": (150.0, 200)}, bic=-400.0, params=better.estimate.params)
+    assert misfit_delta_bic(current, past) == pytest.approx(np.log(1000.0) - 200.0 - 30.0)
+    # Bins of bounds alone (a held adhesion under the dead band) expect nothing: all of their chi-square is excess.
+    bounds = Fit({"release": (141.0, 0)}, bic=0.0, params={"E": 1.0})
+    explained = Fit({"release": (0.5, 0)}, bic=-100.0, params={"E": 1.0, "x.a": 2.0})
+    assert misfit_delta_bic(bounds, explained) == pytest.approx(np.log(1000.0) - 140.5)
+
+
+def test_the_effect_named_lowers_the_bic_most_where_the_model_misfits():
+    """``choose``: a settling drift lowers the whole record's BIC by 380 and a held adhesion
+    by 341 (simulator seed 10 bag 16), but where the model misfits by 112 and 133: the
+    adhesion is named. Within ``BIC_DECISIVE`` of each other there: undecided, the best
+    first. None eligible: the effects the data ask for but do not pin down."""
+    drift = candidate("sensor_drift", -380.6, misfit=-111.7)
+    adhesion = candidate("adhesion", -340.7, misfit=-133.2)
+    assert choose([drift, adhesion]) == ("adhesion", ())
+    close = candidate("sensor_drift", -380.6, misfit=-133.2 + BIC_DECISIVE - 0.01)
+    assert choose([close, adhesion]) == (None, ("adhesion", "sensor_drift"))
+    apart = candidate("sensor_drift", -380.6, misfit=-133.2 + BIC_DECISIVE)
+    assert choose([apart, adhesion]) == ("adhesion", ())
+    loose = candidate("adhesion", -340.7, determined=False, misfit=-133.2)
+    assert choose([drift, loose]) == ("sensor_drift", ())
+    assert choose([candidate("a", -50.0, determined=False), candidate("b", -5.0, significant=False)]) == (None, ("a",))
+    assert choose([]) == (None, ())
 
 
 def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
@@ -266,9 +312,9 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
         "adequate": False, "missing_effect": "relaxation_branch",
         "candidates": [
             {"effect": "relaxation_branch", "form": "f", "delta_bic": -30.0, "rmse_after": 1.0, "explained": 0.8,
-             "eligible": True},
+             "eligible": True, "misfit_delta_bic": -30.0},
             {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
-             "eligible": False},
+             "eligible": False, "misfit_delta_bic": None},
         ],
         "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [],
     }

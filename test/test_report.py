@@ -260,6 +260,16 @@ def test_verdict_and_diagnosis_are_the_jsons(dom: Node, report_json: dict[str, A
     assert [li.text() for li in steps] == [" ".join(s["evidence"].split()) for s in diagnosis["steps"]]
 
 
+def test_the_sensor_section_states_the_jsons_sensor_model(dom: Node, report_json: dict[str, Any]) -> None:
+    sensor = report_json["sensor"]
+    text = dom.find(id="sensor-law").text()
+    assert text.startswith(sensor["law"] + "; cell noise"), text
+    excess = sensor["tactile"]["excess"]
+    assert excess["measured"] is not None and excess["used"] > 0.0, excess
+    assert (f"exceeds its pressure by at most {excess['used']:.3g} Pa ({excess['measured']:.3g} Pa measured "
+            "on the unloaded array before contact)") in " ".join(text.split()), text
+
+
 def assert_printed(cell: Node, expected: float, digits: int, what: str) -> float:
     """``cell`` shows ``expected`` to ``digits`` significant digits (half a unit in the last
     one of rounding) and carries it exactly in ``data-value``; returns the error over that

@@ -30,8 +30,13 @@ def record(sensor: str, params: str = CONTRACT_ONLY, **data_changes):
 
 
 @pytest.fixture(scope="module")
-def sensors() -> dict:
-    return {name: record(name).sensor for name in g.SENSORS}
+def records() -> dict:
+    return {name: record(name) for name in g.SENSORS}
+
+
+@pytest.fixture(scope="module")
+def sensors(records) -> dict:
+    return {name: r.sensor for name, r in records.items()}
 
 
 @pytest.mark.parametrize("name, threshold, resolution, saturation", [
@@ -297,3 +302,23 @@ def test_the_unloaded_array_measures_a_cells_excess_within_the_noises_doubt():
     assert band.unloaded(np.zeros((10, array.nodes)), array.noise * area) is band   # too few frames
     exact = TactileArray(noise=0.0, threshold=0.0, resolution=0.0).dead_band   # noise-free, clipped at zero
     assert exact.unloaded(np.zeros((50, array.nodes)), 0.0) is exact
+
+
+def test_the_sensor_model_states_the_excess_it_allows_and_what_the_unloaded_array_showed(records):
+    """``Record.sensor_json`` (the JSON's ``sensor``): the most a cell's mean reading
+    exceeds its pressure, as used and as measured before contact. Dead band 300 Pa at
+    100 Pa of noise, 10 Pa counts: measured, within the noise's own tail (0.44 Pa a cell)
+    and its doubt's bound (3.1 Pa); the noise clipped at zero: at zero pressure a cell reads
+    the noise's positive half, 100 / sqrt(2 pi) = 39.9 Pa, the doubt's 49.9 (the count's
+    bound over a second of frames: 20 % over it, where every cell crosses); noise-free
+    cells exceed nothing: what reads before contact is load, not noise."""
+    from rheo_ros.sensors import NOISE_DOUBT, cell_reading_bias
+
+    band = records["default_like"].sensor_json()["tactile"]["excess"]
+    assert band["used"] == pytest.approx(band["measured"], rel=1e-12)
+    assert 0.44 <= band["used"] <= cell_reading_bias(300.0, NOISE_DOUBT * 100.0, 10.0)[0] / 2, band
+    clipped = records["no_dead_band"].sensor_json()["tactile"]["excess"]
+    assert CELL_NOISE / math.sqrt(2 * math.pi) * 0.97 <= clipped["used"] <= NOISE_DOUBT * CELL_NOISE / math.sqrt(2 * math.pi)
+    assert clipped["measured"] >= CELL_NOISE / math.sqrt(2 * math.pi) * 0.97, clipped   # a bound over it
+    assert records["noise_free"].sensor_json()["tactile"]["excess"]["used"] == 0.0
+

@@ -200,7 +200,7 @@ class Analysis:
                 "equations": list(self.closed_form.equations),
                 "message": self.closed_form.message,
             },
-            "sensor": self.record.sensor.to_json() if self.record.sensor else None,
+            "sensor": self.record.sensor_json(),
             "models": [self._model_json(m) for m in self.models],
             "diagnosis": diagnosis,
             "warnings": self.report_warnings(),

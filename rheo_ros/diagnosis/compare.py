@@ -52,9 +52,10 @@ class ResidualStats:
         noise: the sensor noise std of one residual (same unit).
         whiteness_p: Ljung-Box p-value (small: the residuals are correlated in time).
         windows: (start, end) times (s) where the running mean stands out of the noise.
-        binned_chi2, bins: the chi-square of the residuals' means over ``BIN_S`` bins (each
-            over its own std, noise / sqrt(readings in it)) and the bins it counts: white
-            noise gives chi-square(bins), a misfit smooth over a bin its whole chi-square.
+        binned_chi2, binned_expectation: the chi-square of the residuals' means over
+            ``BIN_S`` bins (each over its own std, noise / sqrt(readings in it)) and what the
+            noise alone would give it (``binned_chi_square``: each bin its share of live
+            readings); a misfit smooth over a bin keeps its whole chi-square.
     """
 
     signal: str
@@ -66,7 +67,7 @@ class ResidualStats:
     whiteness_p: float
     windows: tuple[tuple[float, float], ...]
     binned_chi2: float = 0.0
-    bins: float = 0.0   # binned_chi2's expectation under the noise alone (``binned_chi_square``)
+    binned_expectation: float = 0.0
 
     @property
     def rms_over_noise(self) -> float:
@@ -125,11 +126,12 @@ def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
         x = r2[sel]
         series = x.mean(axis=1)   # markers: the mean over coordinates keeps a shared drift visible
         per_sample = noise / np.sqrt(x.shape[1])
-        binned_chi2, bins = binned_chi_square(t[sel], x, noise, floor, noisy[sel])
+        binned_chi2, expectation = binned_chi_square(t[sel], x, noise, floor, noisy[sel])
         out.append(ResidualStats(
             signal=signal, phase=name, samples=int(x.size), rms=float(np.sqrt(np.mean(x**2))),
             bias=float(x.mean()), noise=float(noise), whiteness_p=ljung_box_p(series),
-            windows=systematic_windows(t[sel], series, per_sample), binned_chi2=binned_chi2, bins=bins,
+            windows=systematic_windows(t[sel], series, per_sample), binned_chi2=binned_chi2,
+            binned_expectation=expectation,
         ))
     return out
 

@@ -22,6 +22,13 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
    pull's curve by making the keep worse, or a clean phase misfit, is not that effect);
 4. the data pin its parameters down (``pipeline.is_determined``).
 
+Among the effects that pass, the one named is the one that lowers the BIC most where the
+current model misfits (``misfit_delta_bic``): each phase and signal's binned chi-square
+gain counted up to that cell's excess over the noise and no further, its losses counted
+whole. An effect that also fits structure under the noise elsewhere (a settling drift's
+three parameters taking up a mesh's sub-noise discretisation in the pull, keep and markers)
+gains nothing there; it must explain the misfit better than its rivals, not the noise.
+
 (2) and (3) keep a small systematic error elsewhere (the sensors' quirks, a mesh
 not quite converged) from being claimed as an effect that can absorb it: a drift
 offset fitted to a bias in the keep is no drift when the readings before contact
@@ -84,6 +91,8 @@ class Candidate:
         form: the effect's form that fits best (``models.effects``: a family of forms).
         alternatives: the family's other forms that earn their parameters and fit
             nearly as well (``discover.best_form``): refined too before one is added.
+        misfit_delta_bic: the BIC change counted where the current model misfits
+            (``misfit_delta_bic``; inf: no fit): what ranks the eligible candidates.
     """
 
     effect: str
@@ -99,6 +108,7 @@ class Candidate:
     form: str = ""
     footprint: dict[str, float] = field(default_factory=dict)
     alternatives: tuple[Candidate, ...] = ()
+    misfit_delta_bic: float = np.inf
 
     @property
     def eligible(self) -> bool:
@@ -136,7 +146,8 @@ class Diagnosis:
         return {
             "adequate": self.adequate, "missing_effect": self.missing_effect,
             "candidates": [{"effect": c.effect, "form": c.form, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
-                            "explained": _finite(c.explained), "eligible": c.eligible} for c in self.candidates],
+                            "explained": _finite(c.explained), "eligible": c.eligible,
+                            "misfit_delta_bic": _finite(c.misfit_delta_bic)} for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
             "leftover": list(self.leftover),
         }
@@ -293,6 +304,36 @@ def phase_excess(fit: ModelFit, phases: Sequence[str], signals: Sequence[str] = 
     return max([together, *(_excess(*fit.phase_chi2((p,), signals)) for p in phases)])
 
 
+def misfit_delta_bic(current: ModelFit, with_effect: ModelFit) -> float:
+    """The BIC change of ``with_effect`` against ``current`` counted where ``current``
+    misfits: for each phase and signal (force, markers) the fall of its binned chi-square
+    (``ModelFit.phase_chi2``) up to its excess over the noise's expectation, a rise in
+    full; plus the BIC's price of the added parameters. Below the expectation there is
+    nothing left to explain: a model that fits there better fits the noise (or the forward
+    model's floor)."""
+    gain = 0.0
+    for signal in ("force", "markers"):
+        for phase in PHASES:
+            chi_b, n_b = current.phase_chi2((phase,), (signal,))
+            chi_a = with_effect.phase_chi2((phase,), (signal,))[0]
+            gain += min(chi_b - chi_a, max(chi_b - n_b, 0.0))
+    added = len(with_effect.estimate.params) - len(current.estimate.params)
+    return float(added * np.log(with_effect.samples) - gain)
+
+
+def choose(tried: Sequence[Candidate]) -> tuple[str | None, tuple[str, ...]]:
+    """The missing effect, or the effects the data cannot tell apart: of the eligible
+    candidates the one with the lowest ``misfit_delta_bic``, unless another is within
+    ``BIC_DECISIVE`` of it (then both or all such are undecided); with none eligible, the
+    ones the data ask for but do not pin down are undecided."""
+    eligible = sorted((c for c in tried if c.eligible), key=lambda c: (c.misfit_delta_bic, c.delta_bic, c.effect))
+    if not eligible:
+        return None, tuple(c.effect for c in tried if c.significant)
+    best = eligible[0]
+    rivals = tuple(c.effect for c in eligible[1:] if c.misfit_delta_bic - best.misfit_delta_bic < BIC_DECISIVE)
+    return (None, (best.effect, *rivals)) if rivals else (best.effect, ())
+
+
 def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))
@@ -314,4 +355,5 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
     # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
     determined = not undetermined(with_effect, effect_id)
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
-                     float(explained), significant, determined, form=cls.form, footprint=footprint)
+                     float(explained), significant, determined, form=cls.form, footprint=footprint,
+                     misfit_delta_bic=misfit_delta_bic(current, with_effect))

@@ -17,6 +17,7 @@ from rheo_ros.diagnosis.decision import (
     EXCESS_SIGMAS,
     Candidate,
     Diagnosis,
+    choose,
     collapsed,
     judge,
     leftover,
@@ -156,20 +157,8 @@ def diagnose(record: Record, forward: QuasiStaticFE, current: ModelFit,
     forms = _fit_all(record, forward, current, more, noise, progress, workers)
     tried = [best_form([d, *(c for (e, _), c in zip(more, forms) if e == d.effect)]) for d in defaults]
     tried.sort(key=lambda c: (c.delta_bic, c.effect))
-    eligible = [c for c in tried if c.eligible]
-    undecided: tuple[str, ...] = ()
-    missing = None
-    if eligible:
-        best = eligible[0]
-        rivals = [c for c in eligible[1:] if c.delta_bic - best.delta_bic < BIC_DECISIVE]
-        if rivals:
-            undecided = (best.effect, *(c.effect for c in rivals))
-        else:
-            missing = best.effect
-    else:
-        # Asked for by the data but not pinned down: say which, and what would decide.
-        undecided = tuple(c.effect for c in tried if c.significant)
-    adequate = not eligible and not undecided and not current.misfits
+    missing, undecided = choose(tried)
+    adequate = missing is None and not undecided and not current.misfits
     return Diagnosis(current.name, adequate, missing, tuple(tried),
                      evidence_text(current, tried, missing, undecided), undecided)
 

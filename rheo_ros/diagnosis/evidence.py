@@ -69,12 +69,19 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
             verb, them = ("is", "it") if len(loose) == 1 else ("are", "them")
             parts.append(f"Its {names} {verb} not determined by these data (std above half the value): "
                          f"{cls.resolving_experiment} would pin {them} down.")
+        louder = [o for o in tried if o.eligible and o.delta_bic < c.delta_bic]
+        if louder:
+            parts.append("Counted where the model misfits (each phase's gain up to its excess over the noise), "
+                         f"{missing} lowers BIC by {-c.misfit_delta_bic:.3g}, "
+                         + ", ".join(f"{o.effect} by {-o.misfit_delta_bic:.3g} (over the whole record "
+                                     f"{-o.delta_bic:.3g}: the rest fits what the noise leaves)" for o in louder) + ".")
         parts.append(f"Verdict: {missing} is missing.")
     elif undecided:
         rivals = [by_id[e] for e in undecided]
         listed = " and ".join(f"{c.effect} (BIC -{-c.delta_bic:.3g}, RMS {c.rmse_after:.3g} N)" for c in rivals)
         if len(rivals) > 1 and all(c.determined for c in rivals):
-            why = f"they explain the misfit within {BIC_DECISIVE:g} of each other in BIC"
+            why = (f"they explain the misfit within {BIC_DECISIVE:g} of each other in BIC counted where the model "
+                   "misfits")
         else:
             why = "the data do not bound " + ", ".join(k for c in rivals for k in undetermined(c.fit, c.effect))
         parts.append(f"The data cannot decide: {listed}; {why}. To decide, record "

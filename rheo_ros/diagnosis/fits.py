@@ -93,7 +93,7 @@ class ModelFit:
             kind = "force" if s.signal.startswith("P") else s.signal
             if kind in signals and s.phase in phases and s.noise > 0:
                 chi += s.binned_chi2
-                n += s.bins
+                n += s.binned_expectation
         return chi, n
 
 

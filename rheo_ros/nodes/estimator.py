@@ -446,9 +446,11 @@ class EstimatorNode(Node):
         sensor = self.core.sensor
         if sensor is not None:
             reasons += sensor.warnings
+        excess = ((self.core.sensor_model or {}).get("tactile") or {}).get("excess") or {}
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
                    **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",
                                                  "marker noise m": f"{sensor.marker_noise:.4g}"}),
+                   **{f"tactile excess {k} Pa": "none" if v is None else f"{v:.4g}" for k, v in excess.items()},
                    "interim fits skipped": self.fit_jobs.replaced,
                    **{f"bad {INPUTS[s]}": n for s, n in self.bad.counts.items()},
                    **{f"out of order {TOPICS[s]}": n for s, n in self.core.rejected.items()},

@@ -201,8 +201,13 @@ def _sensor_section(result: Analysis) -> str:
     rows = "".join(f'<tr data-field="{html.escape(k)}"><td>{html.escape(k)}</td>'
                    f"<td>{html.escape(v)}</td></tr>" for k, v in sensor.source.items())
     warnings = "".join(f"<li>{html.escape(w)}</li>" for w in sensor.warnings)
+    excess = (result.record.sensor_json() or {})["tactile"].get("excess")
+    under = "" if excess is None else (
+        f" Under the dead band a cell's mean reading exceeds its pressure by at most {excess['used']:.3g} Pa ("
+        + ("not measured: too few frames before contact" if excess["measured"] is None else
+           f"{excess['measured']:.3g} Pa measured on the unloaded array before contact") + ").")
     return (f'<section><h2>Sensor</h2><p id="sensor-law">{html.escape(sensor.law)}; cell noise '
-            f"{sensor.tactile.noise:.3g} Pa, marker noise {sensor.marker_noise:.3g} m.</p>"
+            f"{sensor.tactile.noise:.3g} Pa, marker noise {sensor.marker_noise:.3g} m.{under}</p>"
             f'<table id="sensor-source"><tr><th>field</th><th>from</th></tr>{rows}</table>'
             + (f'<ul id="sensor-warnings">{warnings}</ul>' if warnings else "") + "</section>")
 
