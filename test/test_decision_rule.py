@@ -100,6 +100,22 @@ def test_an_effect_is_judged_only_in_the_phases_it_shows_in(monkeypatch):
     assert set(current.asked) == {("release",)}
 
 
+def test_an_effect_whose_phases_show_nothing_readable_is_judged_wherever_the_data_show_it(monkeypatch):
+    """A keep the array saturates through holds no live reading and no bound the model
+    crosses: the relaxation arm is judged on every phase, force and markers (here the pull
+    it mends, 10 sd -> 1 sd); with a keep that reads, in the keep alone."""
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
+    current = Fit({"pull": (400.0, 200), ("markers", "release"): (120.0, 100)}, bic=1000.0)
+    with_effect = Fit({"pull": (220.0, 200), ("markers", "release"): (100.0, 100)}, bic=950.0)
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.significant and c.excess_before == pytest.approx(10.0)
+    assert set(current.asked) >= {("before", "pull", "keep", "release")}
+    assert c.footprint == {"pull": pytest.approx(0.9)}
+    reads = Fit({**current.chi, "keep": (210.0, 200)}, bic=1000.0)
+    c = judge(reads, Fit({**with_effect.chi, "keep": (205.0, 200)}, bic=950.0), "relaxation_branch")
+    assert not c.significant and c.excess_before == pytest.approx(0.5)
+
+
 def test_the_form_fitted_decides_where_the_effect_is_judged(monkeypatch):
     """A form of a family is judged in its own phases, and the candidate names it."""
     monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)

@@ -8,7 +8,9 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
 
 1. it lowers the BIC by more than ``BIC_DECISIVE`` (10: "very strong" on Kass and
    Raftery's scale; by chance, with two parameters, about once in 10^5 fits);
-2. the base model misfits where the effect shows (``Effect.shows_in``): the chi-square
+2. the base model misfits where the effect shows (``Effect.shows_in``; where nothing
+   there is readable, a keep the array saturates through, every phase of force and
+   markers): the chi-square
    of its residuals' means over one-second bins (``ModelFit.phase_chi2``) exceeds what
    noise gives by ``EXCESS_SIGMAS`` standard deviations. Bins, not readings: an effect
    is smooth, so its whole chi-square stays in the bins' means while the noise's
@@ -338,6 +340,10 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))
     phases, signals = cls.shows_in or PHASES, cls.signals   # judged where it acts: its phases and readings
+    if all(current.phase_chi2((p,), signals) == (0.0, 0.0) for p in phases):
+        # Nothing readable where it acts (a keep the array saturates through: no live
+        # reading, no bound the model crosses): judged wherever the data can show it.
+        phases, signals = PHASES, ("force", "markers")
     chi_b, n_b = current.phase_chi2(phases, signals)
     chi_a, n_a = with_effect.phase_chi2(phases, signals)
     before, after = phase_excess(current, phases, signals), phase_excess(with_effect, phases, signals)
