@@ -446,7 +446,8 @@ class EstimatorNode(Node):
         sensor = self.core.sensor
         if sensor is not None:
             reasons += sensor.warnings
-        excess = ((self.core.sensor_model or {}).get("tactile") or {}).get("excess") or {}
+        model = self.core.last_record.sensor_json() if self.core.last_record is not None else None
+        excess = (model["tactile"].get("excess") if model else None) or {}
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
                    **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",
                                                  "marker noise m": f"{sensor.marker_noise:.4g}"}),

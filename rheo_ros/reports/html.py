@@ -201,7 +201,7 @@ def _sensor_section(result: Analysis) -> str:
     rows = "".join(f'<tr data-field="{html.escape(k)}"><td>{html.escape(k)}</td>'
                    f"<td>{html.escape(v)}</td></tr>" for k, v in sensor.source.items())
     warnings = "".join(f"<li>{html.escape(w)}</li>" for w in sensor.warnings)
-    excess = (result.record.sensor_json() or {})["tactile"].get("excess")
+    excess = result.record.sensor_json()["tactile"].get("excess")
     under = "" if excess is None else (
         f" Under the dead band a cell's mean reading exceeds its pressure by at most {excess['used']:.3g} Pa ("
         + ("not measured: too few frames before contact" if excess["measured"] is None else
