@@ -106,6 +106,10 @@ def test_the_threshold_is_the_smallest_size_above_which_the_target_is_exact():
     t = diagnosis.detection_threshold(items, 0.95)
     assert t["threshold"] == 3.0 and (t["bags_above"], t["correct_above"]) == (2, 2)
     assert (t["bags_below"], t["correct_below"]) == (3, 1)
+    # The largest miss below it bounds it from below: it lies in (2, 3].
+    assert t["missed_below"] == 2.0 and "threshold      3: 2/2 exact above, 1/3 below (largest miss below: 2)" in \
+        diagnosis._threshold_line("adhesion", t)
+    assert diagnosis.detection_threshold([(1.0, True), (2.0, True)], 0.95)["missed_below"] is None
     # One error among 20 above passes 95 %, not among 10; nothing right: no threshold.
     many = [(float(s), True) for s in range(10, 29)] + [(20.5, False)]
     assert diagnosis.detection_threshold(many, 0.95)["threshold"] == 10.0
@@ -158,6 +162,16 @@ def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
     assert (s["above"]["bags"], s["above"]["exact"]) == (3, 3)
     assert (s["below"]["bags"], s["below"]["exact"]) == (2, 0)
     assert s["threshold_weakest"]["threshold"] == 5.0
+    # A family found wholly under the dead band has a readable threshold of 0; a faint layer
+    # there (whole size 0.1, under the whole-size threshold of 5) beside an arm is below it.
+    under = _row([("adhesion", "held", 7.0)], ["adhesion"])
+    pair = _row([("adhesion", "held", 0.1), ("relaxation_branch", "one_arm", 9.0)], ["relaxation_branch"])
+    for row in (under, pair):
+        row["hidden"][0]["size_live"] = 0.0
+    t = diagnosis.score([under, _row([("adhesion", "held", 5.0)], ["adhesion"]), pair,
+                         _row([("relaxation_branch", "one_arm", 8.0)], ["relaxation_branch"])], 0.95)
+    assert t["thresholds"]["adhesion"]["threshold"] == 0.0 and t["thresholds_whole"]["adhesion"]["threshold"] == 5.0
+    assert (t["above"]["bags"], t["above"]["exact"]) == (3, 3) and (t["below"]["bags"], t["below"]["exact"]) == (1, 0)
     # Forms of the named hidden effects: the one-arm branch named as two arms is the one wrong.
     assert (s["forms_right"], s["forms_named"]) == (4, 5)
     assert s["forms"]["relaxation_branch"]["one_arm"] == {"two_arms": 1}

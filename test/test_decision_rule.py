@@ -13,6 +13,7 @@ import pytest
 from rheo_ros.diagnosis import decision
 from rheo_ros.diagnosis.decision import (
     BIC_DECISIVE,
+    DETECT_SIGMAS,
     EXCESS_EXPLAINED,
     EXCESS_SIGMAS,
     Candidate,
@@ -90,7 +91,7 @@ def test_a_clear_effect_is_significant_with_every_figure_of_its_candidate():
 def test_an_effect_is_judged_only_in_the_phases_it_shows_in(monkeypatch):
     # A huge misfit in the pull is no business of the keep's relaxation branch (the
     # ranking of eligible effects, ``misfit_delta_bic``, reads every phase: tested apart).
-    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: -BIC_DECISIVE - 1.0)
     current, with_effect = pair(400.0, 220.0, others=(1e6, 200))
     c = judge(current, with_effect, "relaxation_branch")
     assert set(current.asked) == {("keep",)} and set(with_effect.asked) == {("keep",)}
@@ -104,7 +105,7 @@ def test_an_effect_whose_phases_show_nothing_readable_is_judged_wherever_the_dat
     """A keep the array saturates through holds no live reading and no bound the model
     crosses: the relaxation arm is judged on every phase, force and markers (here the pull
     it mends, 10 sd -> 1 sd); with a keep that reads, in the keep alone."""
-    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: -BIC_DECISIVE - 1.0)
     current = Fit({"pull": (400.0, 200), ("markers", "release"): (120.0, 100)}, bic=1000.0)
     with_effect = Fit({"pull": (220.0, 200), ("markers", "release"): (100.0, 100)}, bic=950.0)
     c = judge(current, with_effect, "relaxation_branch")
@@ -118,7 +119,7 @@ def test_an_effect_whose_phases_show_nothing_readable_is_judged_wherever_the_dat
 
 def test_the_form_fitted_decides_where_the_effect_is_judged(monkeypatch):
     """A form of a family is judged in its own phases, and the candidate names it."""
-    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: 0.0)
+    monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: -BIC_DECISIVE - 1.0)
     from dataclasses import dataclass
     from typing import ClassVar
 
@@ -195,8 +196,8 @@ def test_the_bic_must_drop_by_more_than_the_decisive_margin(delta, significant):
     assert c.delta_bic == pytest.approx(delta)
 
 
-@pytest.mark.parametrize("sigmas, significant", [(EXCESS_SIGMAS + 0.1, True), (EXCESS_SIGMAS, False),
-                                                 (EXCESS_SIGMAS - 0.1, False)])
+@pytest.mark.parametrize("sigmas, significant", [(DETECT_SIGMAS + 0.1, True), (DETECT_SIGMAS, False),
+                                                 (DETECT_SIGMAS - 0.1, False)])
 def test_the_base_model_must_misfit_where_the_effect_shows(sigmas, significant):
     n = 200
     chi_b = n + sigmas * np.sqrt(2.0 * n)
@@ -204,6 +205,22 @@ def test_the_base_model_must_misfit_where_the_effect_shows(sigmas, significant):
     c = judge(current, with_effect, "relaxation_branch")
     assert c.excess_before == pytest.approx(sigmas)
     assert c.explained == pytest.approx(1.0)
+    assert c.significant is significant
+
+
+@pytest.mark.parametrize("params, significant", [(3, True), (8, True), (9, False)])
+def test_a_small_excess_must_pay_for_the_parameters_that_remove_it(params, significant):
+    """3.5 sd over 200 bins (an excess of 70 in chi-square), removed whole, the whole
+    record's BIC down by 50: counted where the model misfits the gain is 70, against
+    k ln n = 6.9 k over 1000 readings; at 9 parameters (62.2) it no longer clears
+    ``BIC_DECISIVE``: a chance excess that many parameters buy is no effect."""
+    n = 200
+    current, with_effect = pair(n + 3.5 * np.sqrt(2.0 * n), n, n=n,
+                                params={f"relaxation_branch.p{i}": 1.0 for i in range(params)},
+                                std={f"relaxation_branch.p{i}": 0.1 for i in range(params)})
+    c = judge(current, with_effect, "relaxation_branch")
+    assert c.excess_before == pytest.approx(3.5) and c.explained == pytest.approx(1.0)
+    assert c.misfit_delta_bic == pytest.approx(params * np.log(1000) - 70.0)
     assert c.significant is significant
 
 
@@ -477,3 +494,25 @@ def test_leftover_names_each_phase_and_signal_that_misfits_beyond_five_sd():
     assert leftover(fit({("markers", "release"): line - 1, ("force", "pull"): line - 1})) == ()
     got = leftover(fit({("markers", "release"): n + 45 * np.sqrt(2 * n), ("force", "keep"): line + 20}))
     assert got == ("force in the keep (5.14 sd)", "markers in the release (45 sd)")
+
+
+def test_a_familys_other_forms_are_tried_where_the_data_can_show_them():
+    """``discover.other_forms``: adhesion's held form is fitted where the model misfits in
+    the release's force; with nothing readable there (a release wholly under the dead band,
+    no bound crossed), where it misfits in any phase or signal (``decision.judged_where``);
+    nowhere else, and not for a family far behind a decisive leader."""
+    from rheo_ros.diagnosis.discover import other_forms
+
+    def default(effect, delta_bic):
+        return Candidate(effect, None, delta_bic, 0.0, 0.0, 0.0, 0.0, False, False)
+
+    misfit = 200.0 + 10.0 * np.sqrt(400.0)            # 10 sd over 200 bins
+    quiet = {p: (200.0, 200) for p in ("before", "pull", "keep", "release")}
+    defaults = [default("adhesion", -30.0)]
+    assert ("adhesion", "held") in other_forms(Fit({**quiet, "release": (misfit, 200)}, bic=0.0), defaults)
+    assert other_forms(Fit(quiet, bic=0.0), defaults) == []
+    unread = {**quiet, "release": (0.0, 0), ("markers", "release"): (misfit, 200)}
+    assert ("adhesion", "held") in other_forms(Fit(unread, bic=0.0), defaults)
+    # Far behind a decisive leader (under a tenth of its drop): not worth a fit.
+    leader = [default("relaxation_branch", -1000.0), default("adhesion", -30.0)]
+    assert all(e != "adhesion" for e, _ in other_forms(Fit({**quiet, "release": (misfit, 200)}, bic=0.0), leader))

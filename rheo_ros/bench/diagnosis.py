@@ -386,16 +386,20 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
 def detection_threshold(items: Iterable[tuple[float, bool]], target: float) -> dict[str, Any]:
     """The smallest size ``s`` among ``items`` (size, correct) such that at least
     ``target`` of the items of size ``s`` or more are correct; None when even the
-    largest alone is wrong. With the counts above and below it."""
+    largest alone is wrong. With the counts above and below it, and the largest wrong
+    size below it (``missed_below``; None: none): the threshold lies between the two, the
+    bags drawn say no closer."""
     ordered = sorted(items, key=lambda x: x[0])
     correct = np.array([c for _, c in ordered], dtype=float)
     for k in range(len(ordered)):
         above = correct[k:]
         if above.mean() >= target:
+            wrong = [size for size, c in ordered[:k] if not c]
             return {"threshold": ordered[k][0], "bags_above": int(above.size), "correct_above": int(above.sum()),
-                    "bags_below": k, "correct_below": int(correct[:k].sum())}
+                    "bags_below": k, "correct_below": int(correct[:k].sum()),
+                    "missed_below": wrong[-1] if wrong else None}
     return {"threshold": None, "bags_above": 0, "correct_above": 0,
-            "bags_below": len(ordered), "correct_below": int(correct.sum())}
+            "bags_below": len(ordered), "correct_below": int(correct.sum()), "missed_below": None}
 
 
 def thresholds(rows: list[dict[str, Any]], target: float, size: str = "size_live",
@@ -413,11 +417,16 @@ def thresholds(rows: list[dict[str, Any]], target: float, size: str = "size_live
     return {key: detection_threshold(items, target) for key, items in sorted(groups.items())}
 
 
-def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]]) -> bool:
-    """Whether each of the bag's hidden effects is at or above its family's threshold."""
+def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]],
+                     whole_thresholds: dict[str, dict[str, Any]] | None = None) -> bool:
+    """Whether each of the bag's hidden effects is at or above its family's threshold by
+    its readable size, and by its whole size above the family's whole-size threshold
+    (``whole_thresholds``): a family found wholly under the dead band has a readable
+    threshold of 0, which a 2.5 Pa layer there reaches too."""
     def above(h: dict[str, Any]) -> bool:
         th = family_thresholds.get(h["effect"], {}).get("threshold")
-        return th is not None and h["size_live"] >= th
+        whole = (whole_thresholds or {}).get(h["effect"], {}).get("threshold", 0.0) if whole_thresholds else 0.0
+        return th is not None and whole is not None and h["size_live"] >= th and h["size"] >= whole
     return all(above(h) for h in row["hidden"])
 
 
@@ -452,8 +461,9 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     clean = [r for r in rows if not r["hidden"] and r["outcome"] not in NO_ANSWER]
     per = thresholds(rows, target)
     families = {k: v for k, v in per.items() if ":" not in k}
-    above = [r for r in effect_rows if above_thresholds(r, families)]
-    below = [r for r in effect_rows if not above_thresholds(r, families)]
+    whole = thresholds(rows, target, "size", forms=False)
+    above = [r for r in effect_rows if above_thresholds(r, families, whole)]
+    below = [r for r in effect_rows if not above_thresholds(r, families, whole)]
     weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
     forms = form_scores(rows)
     fits = [r["force_rms_to_noise"] for r in clean if r["force_rms_to_noise"] is not None
@@ -462,9 +472,9 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "target": target,
         "by_hidden": {n: _accuracy([r for r in rows if len(r["hidden"]) == n]) for n in (0, 1, 2)},
         "thresholds": per,
-        # An effect wholly under the dead band has a readable size of 0 and is never above
-        # a readable threshold: the whole size says how far below the band it is still found.
-        "thresholds_whole": thresholds(rows, target, "size", forms=False),
+        # An effect wholly under the dead band has a readable size of 0: the whole size says
+        # how far below the band it is still found.
+        "thresholds_whole": whole,
         "threshold_weakest": detection_threshold(weakest, target),
         "above": _accuracy(above), "below": _accuracy(below),
         "forms": forms,
@@ -610,8 +620,10 @@ def _fraction(k: int, n: int) -> str:
 
 def _threshold_line(key: str, th: dict[str, Any]) -> str:
     at = "none" if th["threshold"] is None else f"{th['threshold']:.3g}"
+    missed = th.get("missed_below")
+    since = f" (largest miss below: {missed:.3g})" if missed is not None else ""
     return (f"  {key:<36} threshold {at:>6}: {th['correct_above']}/{th['bags_above']} exact above, "
-            f"{th['correct_below']}/{th['bags_below']} below")
+            f"{th['correct_below']}/{th['bags_below']} below{since}")
 
 
 def format_outside(result: dict[str, Any]) -> str:

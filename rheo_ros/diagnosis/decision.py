@@ -12,7 +12,10 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
    there is readable, a keep the array saturates through, every phase of force and
    markers): the chi-square
    of its residuals' means over one-second bins (``ModelFit.phase_chi2``) exceeds what
-   noise gives by ``EXCESS_SIGMAS`` standard deviations. Bins, not readings: an effect
+   noise gives by ``DETECT_SIGMAS`` standard deviations, and counted where the model
+   misfits (``misfit_delta_bic``, below) the effect still lowers the BIC by more than
+   ``BIC_DECISIVE``: a chance excess of 3 sd in one phase (a few times in a thousand) is no effect
+   unless the effect removes more of it than its parameters' price. Bins, not readings: an effect
    is smooth, so its whole chi-square stays in the bins' means while the noise's
    expectation falls from one per reading to one per bin (over 12 500 readings an effect
    worth 300 in chi-square is 1.9 sd, over 250 bins 13 sd), and a noise level read off
@@ -67,6 +70,12 @@ BIC_DECISIVE = 10.0
 # An effect's parameter is pinned down when its std is within this share of its value
 # (``pipeline.is_determined``): a std up to the value itself still says which effect it is.
 DETERMINED_STD = 1.0
+# The base's misfit where an effect shows that lets it be tried: low enough for an effect
+# at the physical limit (a Voigt spring stiffening by 2.4-2.6 x the total-force noise left
+# its pull 4.5-4.6 sd over), with rule 2's BIC counted where the model misfits as the guard.
+DETECT_SIGMAS = 3.0
+# A phase that misfits beyond doubt: the footprint each named effect must halve, and what a
+# model with effects added may not leave (``leftover``).
 EXCESS_SIGMAS = 5.0
 EXCESS_EXPLAINED = 0.5
 
@@ -336,14 +345,22 @@ def choose(tried: Sequence[Candidate]) -> tuple[str | None, tuple[str, ...]]:
     return (None, (best.effect, *rivals)) if rivals else (best.effect, ())
 
 
+def judged_where(current: ModelFit, cls: type) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The phases and signals an effect (its class: a family's form) is judged in: where it
+    acts, its phases and readings; where nothing there is readable in ``current`` (a keep
+    the array saturates through, a release wholly under the dead band with no bound the
+    model crosses: no live reading, no excess), every phase of force and markers, where the
+    data can show it."""
+    phases, signals = tuple(cls.shows_in or PHASES), tuple(cls.signals)
+    if all(current.phase_chi2((p,), signals) == (0.0, 0.0) for p in phases):
+        return PHASES, ("force", "markers")
+    return phases, signals
+
+
 def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
     """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))
-    phases, signals = cls.shows_in or PHASES, cls.signals   # judged where it acts: its phases and readings
-    if all(current.phase_chi2((p,), signals) == (0.0, 0.0) for p in phases):
-        # Nothing readable where it acts (a keep the array saturates through: no live
-        # reading, no bound the model crosses): judged wherever the data can show it.
-        phases, signals = PHASES, ("force", "markers")
+    phases, signals = judged_where(current, cls)
     chi_b, n_b = current.phase_chi2(phases, signals)
     chi_a, n_a = with_effect.phase_chi2(phases, signals)
     before, after = phase_excess(current, phases, signals), phase_excess(with_effect, phases, signals)
@@ -356,10 +373,11 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
             footprint[phase] = float((cb - ca) / (cb - nb))
         elif _excess(ca, na) > EXCESS_SIGMAS:
             footprint[phase] = -np.inf
-    significant = bool(delta < -BIC_DECISIVE and before > EXCESS_SIGMAS and explained >= EXCESS_EXPLAINED
-                       and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
+    where_misfit = misfit_delta_bic(current, with_effect)
+    significant = bool(delta < -BIC_DECISIVE and before > DETECT_SIGMAS and where_misfit < -BIC_DECISIVE
+                       and explained >= EXCESS_EXPLAINED and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
     # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
     determined = not undetermined(with_effect, effect_id)
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
                      float(explained), significant, determined, form=cls.form, footprint=footprint,
-                     misfit_delta_bic=misfit_delta_bic(current, with_effect))
+                     misfit_delta_bic=where_misfit)

@@ -14,19 +14,19 @@ import numpy as np
 
 from rheo_ros.diagnosis.decision import (
     BIC_DECISIVE,
-    EXCESS_SIGMAS,
+    DETECT_SIGMAS,
     Candidate,
     Diagnosis,
     choose,
     collapsed,
     judge,
+    judged_where,
     leftover,
     phase_excess,
     sample_interval,
 )
 from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import ModelFit, add_effect, fit_model, polish, restart_from_corrected
-from rheo_ros.experiment import PHASES
 from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import catalogue, effect_class, effect_forms
@@ -71,7 +71,7 @@ def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[
     leader = min(drops)
     bar = FORM_SHARE * leader if leader < -BIC_DECISIVE else np.inf
     return [(c.effect, cls.form) for c in defaults if c.delta_bic <= bar for cls in effect_forms(c.effect)[1:]
-            if phase_excess(current, cls.shows_in or PHASES) > EXCESS_SIGMAS]
+            if phase_excess(current, *judged_where(current, cls)) > DETECT_SIGMAS]
 
 
 def best_form(tried: Sequence[Candidate]) -> Candidate:

@@ -9,8 +9,8 @@ import numpy as np
 
 from rheo_ros.diagnosis.decision import (
     BIC_DECISIVE,
+    DETECT_SIGMAS,
     EXCESS_EXPLAINED,
-    EXCESS_SIGMAS,
     Candidate,
     held_ranges,
     undetermined,
@@ -97,10 +97,13 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
                     why.append(f"{c.effect}: {c.note}")
                 elif c.delta_bic >= -BIC_DECISIVE:
                     why.append(f"{c.effect} changes BIC by {c.delta_bic:+.3g}")
-                elif c.excess_before <= EXCESS_SIGMAS:
+                elif c.excess_before <= DETECT_SIGMAS:
                     why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} but the phases it shows in "
                                f"({', '.join(effect_class(c.effect).shows_in)}) fit within the noise "
                                f"({c.excess_before:.2g} sd)")
+                elif c.misfit_delta_bic >= -BIC_DECISIVE:
+                    why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g}, but counted where the model "
+                               f"misfits by {-c.misfit_delta_bic:+.3g}: it fits the noise, not a misfit")
                 elif c.explained >= EXCESS_EXPLAINED and c.footprint:
                     phase, share = min(c.footprint.items(), key=lambda kv: kv[1])
                     why.append(f"{c.effect} lowers BIC by {-c.delta_bic:.3g} and removes "
