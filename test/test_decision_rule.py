@@ -516,3 +516,27 @@ def test_a_familys_other_forms_are_tried_where_the_data_can_show_them():
     # Far behind a decisive leader (under a tenth of its drop): not worth a fit.
     leader = [default("relaxation_branch", -1000.0), default("adhesion", -30.0)]
     assert all(e != "adhesion" for e, _ in other_forms(Fit({**quiet, "release": (misfit, 200)}, bic=0.0), leader))
+
+
+def test_a_base_parameter_left_at_a_bound_by_a_misfitting_model_restarts_from_the_closed_form(monkeypatch):
+    """``fits.lost_base_start``: c2 run off (infinite std) while the model misfits takes the
+    closed form's value as a second start for each effect's fit; nothing when nothing is
+    lost, when the model fits, or when no closed form has a solution."""
+    from rheo_ros.diagnosis import fits
+    from rheo_ros.identification.pipeline import NoClosedForm
+
+    closed = SimpleNamespace(estimate=SimpleNamespace(params={"E": 2.5e4, "c1": 2.4e5, "c2": 9.3e6, "gamma": 0.3}))
+    monkeypatch.setattr(fits, "closed_form", lambda phase, record, forward: closed)
+
+    def current(c2_std, misfits):
+        return SimpleNamespace(estimate=SimpleNamespace(std={"E": 4.0, "c1": 65.0, "c2": c2_std, "gamma": 3e-4}),
+                               misfits=misfits)
+
+    assert fits.lost_base_start(None, None, current(np.inf, {"total": 3.2})) == {"c2": 9.3e6}
+    assert fits.lost_base_start(None, None, current(1e5, {"total": 3.2})) == {}
+    assert fits.lost_base_start(None, None, current(np.inf, {})) == {}
+
+    def none(phase, record, forward):
+        raise NoClosedForm("no closed form")
+    monkeypatch.setattr(fits, "closed_form", none)
+    assert fits.lost_base_start(None, None, current(np.inf, {"total": 3.2})) == {}
