@@ -425,7 +425,7 @@ def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str,
     threshold of 0, which a 2.5 Pa layer there reaches too."""
     def above(h: dict[str, Any]) -> bool:
         th = family_thresholds.get(h["effect"], {}).get("threshold")
-        whole = (whole_thresholds or {}).get(h["effect"], {}).get("threshold", 0.0) if whole_thresholds else 0.0
+        whole = (whole_thresholds or {}).get(h["effect"], {}).get("threshold", 0.0)
         return th is not None and whole is not None and h["size_live"] >= th and h["size"] >= whole
     return all(above(h) for h in row["hidden"])
 
