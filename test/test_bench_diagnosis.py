@@ -115,6 +115,11 @@ def test_the_threshold_is_the_smallest_size_above_which_the_target_is_exact():
     assert diagnosis.detection_threshold(many, 0.95)["threshold"] == 10.0
     assert diagnosis.detection_threshold(many[10:], 0.95)["threshold"] == 21.0
     assert diagnosis.detection_threshold([(5.0, False)], 0.9)["threshold"] is None
+    # Bags of one size are on one side together: 0 would be a threshold only if every
+    # effect at readable size 0 were named.
+    under = [(0.0, True), (0.0, False), (0.0, True), (3.5, True), (16.0, True)]
+    t = diagnosis.detection_threshold(under, 0.95)
+    assert (t["threshold"], t["bags_below"], t["missed_below"]) == (3.5, 3, 0.0)
 
 
 def test_thresholds_per_family_and_form_come_from_single_effect_bags():
@@ -162,8 +167,9 @@ def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
     assert (s["above"]["bags"], s["above"]["exact"]) == (3, 3)
     assert (s["below"]["bags"], s["below"]["exact"]) == (2, 0)
     assert s["threshold_weakest"]["threshold"] == 5.0
-    # A family found wholly under the dead band has a readable threshold of 0; a faint layer
-    # there (whole size 0.1, under the whole-size threshold of 5) beside an arm is below it.
+    # A family found wholly under the dead band (readable size 0, every such single bag
+    # named) has a readable threshold of 0: a pair with a faint layer there is above it, and
+    # its miss counts against the accuracy above. The whole size's threshold is reported.
     under = _row([("adhesion", "held", 7.0)], ["adhesion"])
     pair = _row([("adhesion", "held", 0.1), ("relaxation_branch", "one_arm", 9.0)], ["relaxation_branch"])
     for row in (under, pair):
@@ -171,7 +177,7 @@ def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
     t = diagnosis.score([under, _row([("adhesion", "held", 5.0)], ["adhesion"]), pair,
                          _row([("relaxation_branch", "one_arm", 8.0)], ["relaxation_branch"])], 0.95)
     assert t["thresholds"]["adhesion"]["threshold"] == 0.0 and t["thresholds_whole"]["adhesion"]["threshold"] == 5.0
-    assert (t["above"]["bags"], t["above"]["exact"]) == (3, 3) and (t["below"]["bags"], t["below"]["exact"]) == (1, 0)
+    assert (t["above"]["bags"], t["above"]["exact"]) == (4, 3) and t["below"]["bags"] == 0
     # Forms of the named hidden effects: the one-arm branch named as two arms is the one wrong.
     assert (s["forms_right"], s["forms_named"]) == (4, 5)
     assert s["forms"]["relaxation_branch"]["one_arm"] == {"two_arms": 1}

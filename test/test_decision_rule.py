@@ -5,6 +5,7 @@ flattened verdict. Fast (no fitting): these are the tests mutation testing runs
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -30,11 +31,13 @@ from rheo_ros.diagnosis.decision import (
 
 class Fit:
     """What ``judge`` reads of a ``ModelFit``: the chi-square per phase, the BIC, the
-    estimate's values and std, the force RMS, the effects' forms, the signed parameters."""
+    estimate's values and std, the force RMS, the effects (ids) and their forms, the signed
+    parameters."""
 
     def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
-                 forms=None, signed=(), samples: int = 1000):
+                 forms=None, signed=(), samples: int = 1000, effects=()):
         self.chi, self.bic, self.rmse_force, self.forms, self.samples = chi, bic, rmse, forms or {}, samples
+        self.effects = tuple(effects)
         self.estimate = SimpleNamespace(params=params or {}, std=std or {}, statistics=None)
         self.model = SimpleNamespace(signed_parameters=tuple(signed))
         self.asked: list[tuple[str, ...]] = []
@@ -94,8 +97,8 @@ def test_an_effect_is_judged_only_in_the_phases_it_shows_in(monkeypatch):
     monkeypatch.setattr(decision, "misfit_delta_bic", lambda current, with_effect: -BIC_DECISIVE - 1.0)
     current, with_effect = pair(400.0, 220.0, others=(1e6, 200))
     c = judge(current, with_effect, "relaxation_branch")
-    assert set(current.asked) == {("keep",)} and set(with_effect.asked) == {("keep",)}
-    assert c.excess_before == pytest.approx(10.0)
+    assert ("pull",) not in current.asked and ("pull",) not in with_effect.asked
+    assert c.excess_before == pytest.approx(10.0) and c.significant
     current, with_effect = pair(400.0, 220.0, phase="release")
     assert judge(current, with_effect, "adhesion").excess_before == pytest.approx(10.0)
     assert set(current.asked) == {("release",)}
@@ -292,9 +295,10 @@ def test_eligible_needs_both_significant_and_determined():
     assert Candidate(**base, significant=False, determined=True).eligible is False
 
 
-def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8, form="f", misfit=None):
+def candidate(effect, delta, significant=True, determined=True, rmse=1.0, explained=0.8, form="f", misfit=None,
+              clears=()):
     return Candidate(effect, None, delta, rmse, 9.0, 1.0, explained, significant, determined, form=form,
-                     misfit_delta_bic=delta if misfit is None else misfit)
+                     misfit_delta_bic=delta if misfit is None else misfit, clears=clears)
 
 
 def test_the_bic_where_the_model_misfits_counts_each_gain_up_to_its_excess_and_each_loss_whole():
@@ -345,9 +349,9 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
         "adequate": False, "missing_effect": "relaxation_branch",
         "candidates": [
             {"effect": "relaxation_branch", "form": "f", "delta_bic": -30.0, "rmse_after": 1.0, "explained": 0.8,
-             "eligible": True, "misfit_delta_bic": -30.0},
+             "eligible": True, "misfit_delta_bic": -30.0, "clears": []},
             {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
-             "eligible": False, "misfit_delta_bic": None},
+             "eligible": False, "misfit_delta_bic": None, "clears": []},
         ],
         "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [],
     }
@@ -540,3 +544,55 @@ def test_a_base_parameter_left_at_a_bound_by_a_misfitting_model_restarts_from_th
         raise NoClosedForm("no closed form")
     monkeypatch.setattr(fits, "closed_form", none)
     assert fits.lost_base_start(None, None, current(np.inf, {"total": 3.2})) == {}
+
+
+def test_an_effect_that_completes_a_model_with_effects_is_named_though_its_own_phase_fits():
+    """Generator seed 15 bag 17: a settling drift, added first, set its level between the
+    release (drift + a held adhesion) and the pull (drift alone): the release fits, the pull
+    misfits by 11 sd. The adhesion's own phase fits, so it fails rule 2, but with it nothing
+    misfits beyond 5 sd: it completes the model. Not on the base (judged by the ratio rule),
+    not when a phase still misfits with it, not without the decisive BIC."""
+    n = 200
+    pull_11sd = n + 11.0 * np.sqrt(2 * n)
+    quiet = {p: (float(n), n) for p in ("before", "pull", "keep", "release")}
+    drift = Fit({**quiet, "pull": (pull_11sd, n)}, bic=1000.0, effects=("sensor_drift",))
+    both = Fit(quiet, bic=880.0, params={"adhesion.p0": 140.0}, std={"adhesion.p0": 9.0},
+               effects=("sensor_drift", "adhesion"))
+    c = judge(drift, both, "adhesion")
+    assert not c.significant and c.excess_before == pytest.approx(0.0)
+    assert c.clears == ("force in the pull (11 sd)",) and c.completes and not c.eligible
+    assert choose([c]) == ("adhesion", ())
+    # The base model is judged by the ratio rule, not by ``leftover``.
+    base = Fit(drift.chi, bic=1000.0)
+    assert judge(base, both, "adhesion").clears == ()
+    # A phase still beyond 5 sd with it: it does not complete the model.
+    half = Fit({**quiet, "pull": (n + 6.0 * np.sqrt(2 * n), n)}, bic=900.0, params=both.estimate.params,
+               std=both.estimate.std, effects=both.effects)
+    assert judge(drift, half, "adhesion").clears == ()
+    # Nor with a BIC fall under the decisive margin.
+    cheap = Fit(quiet, bic=1000.0 - BIC_DECISIVE + 0.5, params=both.estimate.params, std=both.estimate.std)
+    assert judge(drift, cheap, "adhesion").clears == ()
+
+
+def test_an_effect_with_a_signature_goes_before_one_that_only_completes_the_model():
+    """``choose``: an eligible candidate (rules 1-4) is named over one that completes the
+    model, whatever their counts; one that completes but is not pinned down is undecided."""
+    signature = candidate("relaxation_branch", -40.0, misfit=-30.0)
+    completes = candidate("adhesion", -300.0, significant=False, misfit=-200.0, clears=("force in the pull (11 sd)",))
+    assert completes.completes and not completes.eligible
+    assert choose([completes, signature]) == ("relaxation_branch", ())
+    loose = candidate("adhesion", -300.0, significant=False, determined=False, clears=("force in the pull (11 sd)",))
+    assert not loose.completes and choose([loose]) == (None, ("adhesion",))
+    rival = candidate("sensor_drift", -290.0, significant=False, misfit=-195.0, clears=("force in the pull (11 sd)",))
+    assert choose([completes, rival]) == (None, ("adhesion", "sensor_drift"))
+
+
+def test_a_family_whose_default_completes_the_model_has_its_other_forms_tried():
+    """A fading adhesion whose time runs off (not pinned down) completes the model: the held
+    form is fitted, though the release it shows in fits."""
+    from rheo_ros.diagnosis.discover import other_forms
+
+    quiet = Fit({p: (200.0, 200) for p in ("before", "pull", "keep", "release")}, bic=0.0)
+    fading = Candidate("adhesion", None, -140.0, 0.0, 0.0, 0.0, 0.0, False, False, clears=("force in the pull (11 sd)",))
+    assert ("adhesion", "held") in other_forms(quiet, [fading])
+    assert other_forms(quiet, [replace(fading, clears=())]) == []

@@ -388,10 +388,14 @@ def detection_threshold(items: Iterable[tuple[float, bool]], target: float) -> d
     ``target`` of the items of size ``s`` or more are correct; None when even the
     largest alone is wrong. With the counts above and below it, and the largest wrong
     size below it (``missed_below``; None: none): the threshold lies between the two, the
-    bags drawn say no closer."""
+    bags drawn say no closer. Bags of one size fall on one side together: nine held
+    adhesions wholly under the dead band (readable size 0) are all above a threshold of 0,
+    the six named and the three missed alike."""
     ordered = sorted(items, key=lambda x: x[0])
     correct = np.array([c for _, c in ordered], dtype=float)
     for k in range(len(ordered)):
+        if k and ordered[k][0] == ordered[k - 1][0]:
+            continue
         above = correct[k:]
         if above.mean() >= target:
             wrong = [size for size, c in ordered[:k] if not c]
@@ -417,16 +421,12 @@ def thresholds(rows: list[dict[str, Any]], target: float, size: str = "size_live
     return {key: detection_threshold(items, target) for key, items in sorted(groups.items())}
 
 
-def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]],
-                     whole_thresholds: dict[str, dict[str, Any]] | None = None) -> bool:
-    """Whether each of the bag's hidden effects is at or above its family's threshold by
-    its readable size, and by its whole size above the family's whole-size threshold
-    (``whole_thresholds``): a family found wholly under the dead band has a readable
-    threshold of 0, which a 2.5 Pa layer there reaches too."""
+def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]]) -> bool:
+    """Whether each of the bag's hidden effects is at or above its family's threshold by its
+    readable size (a family with no threshold: not above)."""
     def above(h: dict[str, Any]) -> bool:
         th = family_thresholds.get(h["effect"], {}).get("threshold")
-        whole = (whole_thresholds or {}).get(h["effect"], {}).get("threshold", 0.0)
-        return th is not None and whole is not None and h["size_live"] >= th and h["size"] >= whole
+        return th is not None and h["size_live"] >= th
     return all(above(h) for h in row["hidden"])
 
 
@@ -462,8 +462,8 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     per = thresholds(rows, target)
     families = {k: v for k, v in per.items() if ":" not in k}
     whole = thresholds(rows, target, "size", forms=False)
-    above = [r for r in effect_rows if above_thresholds(r, families, whole)]
-    below = [r for r in effect_rows if not above_thresholds(r, families, whole)]
+    above = [r for r in effect_rows if above_thresholds(r, families)]
+    below = [r for r in effect_rows if not above_thresholds(r, families)]
     weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
     forms = form_scores(rows)
     fits = [r["force_rms_to_noise"] for r in clean if r["force_rms_to_noise"] is not None

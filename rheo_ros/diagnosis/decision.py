@@ -27,6 +27,16 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
    pull's curve by making the keep worse, or a clean phase misfit, is not that effect);
 4. the data pin its parameters down (``pipeline.is_determined``).
 
+When none passes (2)-(3) on a model with effects added, an effect that completes the model
+may be named instead: with it, every phase of force and markers that misfit beyond ``EXCESS_SIGMAS`` (``leftover``)
+fits within that line, with (1), (4) and the BIC counted where the model misfits below
+``-BIC_DECISIVE``. Its own phases may then fit already: an effect found first took them up
+(a settling drift fitted beside a held adhesion sets its level between the release, which
+carries both, and the pull, which carries the drift alone: the release fits, the pull
+misfits by 11 sd, and only the adhesion lets both fit; generator seed 15 bag 17). This is the
+rule that says the effects added explain the data (``Verdict.explained``), asked of one
+effect more.
+
 Among the effects that pass, the one named is the one that lowers the BIC most where the
 current model misfits (``misfit_delta_bic``): each phase and signal's binned chi-square
 gain counted up to that cell's excess over the noise and no further, its losses counted
@@ -104,6 +114,9 @@ class Candidate:
             nearly as well (``discover.best_form``): refined too before one is added.
         misfit_delta_bic: the BIC change counted where the current model misfits
             (``misfit_delta_bic``; inf: no fit): what ranks the eligible candidates.
+        clears: where the current model misfits beyond ``EXCESS_SIGMAS`` (``leftover``)
+            when, with the effect, nothing does and the BIC falls decisively, over the whole
+            record and where the model misfits (empty: it does not complete the model).
     """
 
     effect: str
@@ -120,11 +133,17 @@ class Candidate:
     footprint: dict[str, float] = field(default_factory=dict)
     alternatives: tuple[Candidate, ...] = ()
     misfit_delta_bic: float = np.inf
+    clears: tuple[str, ...] = ()
 
     @property
     def eligible(self) -> bool:
         """An effect the data both ask for and pin down."""
         return self.significant and self.determined
+
+    @property
+    def completes(self) -> bool:
+        """An effect that, pinned down, leaves the model misfitting nowhere (``clears``)."""
+        return bool(self.clears) and self.determined
 
 
 @dataclass(frozen=True)
@@ -158,7 +177,8 @@ class Diagnosis:
             "adequate": self.adequate, "missing_effect": self.missing_effect,
             "candidates": [{"effect": c.effect, "form": c.form, "delta_bic": _finite(c.delta_bic), "rmse_after": _finite(c.rmse_after),
                             "explained": _finite(c.explained), "eligible": c.eligible,
-                            "misfit_delta_bic": _finite(c.misfit_delta_bic)} for c in self.candidates],
+                            "misfit_delta_bic": _finite(c.misfit_delta_bic), "clears": list(c.clears)}
+                           for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
             "leftover": list(self.leftover),
         }
@@ -334,12 +354,14 @@ def misfit_delta_bic(current: ModelFit, with_effect: ModelFit) -> float:
 
 def choose(tried: Sequence[Candidate]) -> tuple[str | None, tuple[str, ...]]:
     """The missing effect, or the effects the data cannot tell apart: of the eligible
-    candidates the one with the lowest ``misfit_delta_bic``, unless another is within
-    ``BIC_DECISIVE`` of it (then both or all such are undecided); with none eligible, the
-    ones the data ask for but do not pin down are undecided."""
-    eligible = sorted((c for c in tried if c.eligible), key=lambda c: (c.misfit_delta_bic, c.delta_bic, c.effect))
+    candidates (none: those that complete the model, ``Candidate.completes``) the one with
+    the lowest ``misfit_delta_bic``, unless another is within ``BIC_DECISIVE`` of it (then
+    both or all such are undecided); with none, the ones the data ask for but do not pin
+    down are undecided."""
+    eligible = [c for c in tried if c.eligible] or [c for c in tried if c.completes]
+    eligible.sort(key=lambda c: (c.misfit_delta_bic, c.delta_bic, c.effect))
     if not eligible:
-        return None, tuple(c.effect for c in tried if c.significant)
+        return None, tuple(c.effect for c in tried if c.significant or c.clears)
     best = eligible[0]
     rivals = tuple(c.effect for c in eligible[1:] if c.misfit_delta_bic - best.misfit_delta_bic < BIC_DECISIVE)
     return (None, (best.effect, *rivals)) if rivals else (best.effect, ())
@@ -374,10 +396,14 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
         elif _excess(ca, na) > EXCESS_SIGMAS:
             footprint[phase] = -np.inf
     where_misfit = misfit_delta_bic(current, with_effect)
-    significant = bool(delta < -BIC_DECISIVE and before > DETECT_SIGMAS and where_misfit < -BIC_DECISIVE
-                       and explained >= EXCESS_EXPLAINED and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
+    decisive = bool(delta < -BIC_DECISIVE and where_misfit < -BIC_DECISIVE)
+    significant = decisive and bool(before > DETECT_SIGMAS and explained >= EXCESS_EXPLAINED
+                                    and all(share >= EXCESS_EXPLAINED for share in footprint.values()))
+    # The base is judged by the coarser ratio rule; the effects added answer to ``leftover``.
+    misfit = leftover(current) if decisive and current.effects else ()
+    clears = misfit if misfit and not leftover(with_effect) else ()
     # An arm run off to a relaxation time of nanoseconds has a std, but the data do not bound it.
     determined = not undetermined(with_effect, effect_id)
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
                      float(explained), significant, determined, form=cls.form, footprint=footprint,
-                     misfit_delta_bic=where_misfit)
+                     misfit_delta_bic=where_misfit, clears=clears)

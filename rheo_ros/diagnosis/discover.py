@@ -63,15 +63,16 @@ def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
 def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[str, str]]:
     """(effect id, form) of the other forms worth fitting after the families' defaults:
     where ``current`` misfits in the phases the form shows in (elsewhere no form can earn
-    its parameters: ``decision.judge``), those of each family but the ones far behind a
-    decisive leader (``FORM_SHARE``)."""
+    its parameters: ``decision.judge``), or every form of a family whose default completes
+    the model (``Candidate.clears``: a fading adhesion whose time runs off is a held one),
+    those of each family but the ones far behind a decisive leader (``FORM_SHARE``)."""
     drops = [c.delta_bic for c in defaults if np.isfinite(c.delta_bic)]
     if not drops:
         return []
     leader = min(drops)
     bar = FORM_SHARE * leader if leader < -BIC_DECISIVE else np.inf
     return [(c.effect, cls.form) for c in defaults if c.delta_bic <= bar for cls in effect_forms(c.effect)[1:]
-            if phase_excess(current, *judged_where(current, cls)) > DETECT_SIGMAS]
+            if c.clears or phase_excess(current, *judged_where(current, cls)) > DETECT_SIGMAS]
 
 
 def best_form(tried: Sequence[Candidate]) -> Candidate:

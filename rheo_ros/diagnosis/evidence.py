@@ -11,6 +11,7 @@ from rheo_ros.diagnosis.decision import (
     BIC_DECISIVE,
     DETECT_SIGMAS,
     EXCESS_EXPLAINED,
+    EXCESS_SIGMAS,
     Candidate,
     held_ranges,
     undetermined,
@@ -54,10 +55,14 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         effect = next(e for e in c.fit.model.effects if e.id == missing)
         before = {p: current.rmse_by_phase.get(p, np.nan) for p in cls.shows_in if p in current.rmse_by_phase}
         moved = "; ".join(f"{p} RMS {before[p]:.3g} -> {c.fit.rmse_by_phase[p]:.3g} N" for p in before)
-        parts.append(
-            f"Adding {missing} ({effect.form} form: {effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total force RMS from "
-            f"{current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows}) and removes "
-            f"{100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
+        head = (f"Adding {missing} ({effect.form} form: {effect.describe()}) lowers BIC by {-c.delta_bic:.3g}, the total "
+                f"force RMS from {current.rmse_force:.3g} N to {c.rmse_after:.3g} N ({moved or 'where it shows: ' + shows})")
+        if c.significant:
+            parts.append(f"{head} and removes {100 * min(c.explained, 1.0):.0f} % of the misfit where it shows ({shows}).")
+        else:
+            parts.append(f"{head} and completes the model: the model misfit beyond {EXCESS_SIGMAS:g} sd "
+                         f"({', '.join(c.clears)}) and with it misfits nowhere, though where {missing} shows "
+                         f"({shows}) it fit within the noise already (the effects added took up its share).")
         ranged = {k: r for k, r in held_ranges(c.fit).items() if k.startswith(missing + ".")}
         if ranged:
             spans = "; ".join(f"{k.split('.', 1)[1]} between {lo:.3g} and {hi:.3g}" for k, (lo, hi) in ranged.items())
