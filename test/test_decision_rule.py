@@ -498,6 +498,10 @@ def test_leftover_names_each_phase_and_signal_that_misfits_beyond_five_sd():
     assert leftover(fit({("markers", "release"): line - 1, ("force", "pull"): line - 1})) == ()
     got = leftover(fit({("markers", "release"): n + 45 * np.sqrt(2 * n), ("force", "keep"): line + 20}))
     assert got == ("force in the keep (5.14 sd)", "markers in the release (45 sd)")
+    # Before contact the force counts (a drift shows there); the markers do not: their
+    # residual there is the profiled starts' image of the moving frames' mean misfit.
+    assert leftover(fit({("markers", "before"): line + 100, ("force", "before"): line + 20})) == (
+        "force in the before (5.14 sd)",)
 
 
 def test_a_familys_other_forms_are_tried_where_the_data_can_show_them():
