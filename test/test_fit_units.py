@@ -7,7 +7,8 @@ cached by an earlier test would leave the later ones unmapped (never run on a mu
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -25,7 +26,7 @@ from rheo_ros.identification.fit import (
     fit_record,
 )
 from rheo_ros.identification.noise import Weights
-from rheo_ros.models.effects import Model
+from rheo_ros.models.effects import Effect, Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record
 
@@ -46,7 +47,7 @@ def with_band(record: Record, band) -> Record:
 def tiny_record(truth=TRUTH, force_std=0.0, marker_std=0.0, seed=0, forward=None, tactile_delay=0.0, marker_dt=0.5):
     """A 3 x 3 plane block's record made by ``forward`` (default: the marker grid's own
     quasi-static model, the one the fit uses), with white noise."""
-    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, rows=3, cols=3)
+    mesh = forward.mesh if forward is not None else Mesh.build("plane_fe", 0.08, 0.08, 0.0125, rows=3, cols=3)
     forward = forward or QuasiStaticFE(mesh)
     p = PROFILE
     ft, mt, st = np.arange(0.0, p.t_end, 0.1), np.arange(0.05, p.t_end, marker_dt), np.arange(0.0, p.t_end, 0.05)
@@ -514,6 +515,76 @@ def test_live_ceiling_is_the_dead_bands_threshold(rec):
 
 # ---------------------------------------------------------------- the solves
 
+def _jacobian(f, params: dict, names: tuple[str, ...]) -> np.ndarray:
+    """Central differences of ``f`` over ``names`` at ``params``, a relative step of 1e-6."""
+    cols = []
+    for n in names:
+        h = 1e-6 * max(abs(params[n]), 1e-3)
+        up, down = dict(params), dict(params)
+        up[n], down[n] = params[n] + h, params[n] - h
+        cols.append((f(up) - f(down)) / (2 * h))
+    return np.array(cols).T
+
+
+@pytest.mark.parametrize("grid", [3, 5])
+def test_the_solver_works_on_the_markers_in_the_span_of_the_shapes(grid):
+    """The markers' shapes over every Poisson ratio span 2 of 18 coordinates (3 x 3) and 8
+    of 50 (5 x 5), within 1e-12; the solver's residuals turn the markers into that span:
+    the same sum of squares (1e-12 relative) on fewer rows, and their Jacobian turned
+    back is every reading's (central differences of both; 1e-6 of the largest entry)."""
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, rows=grid, cols=grid)
+    forward = QuasiStaticFE(mesh)
+    span = forward.marker_span()
+    assert span.shape == (2 * grid * grid, {3: 2, 5: 8}[grid])
+    np.testing.assert_allclose(span.T @ span, np.eye(span.shape[1]), atol=1e-12)
+    for gamma in (-0.99, 0.0, 0.3, 0.499):
+        shape = forward.shape(gamma).displacement.ravel()
+        assert np.linalg.norm(shape - span @ (span.T @ shape)) < 1e-12 * np.linalg.norm(shape)
+    rec = tiny_record(force_std=FORCE_STD, marker_std=MARKER_STD, forward=forward)
+    problem = WholeRecordProblem(rec, MODEL, np.full(grid, FORCE_STD), MARKER_STD, forward=forward, delays=True)
+    params = {**{k: 1.05 * v for k, v in TRUTH.items()}, "tactile_delay": 0.01, "marker_delay": -0.02}
+    full, reduced = problem.residuals(params), problem.solver_residuals(params)
+    frames = rec.markers.shape[0]
+    assert full.size - reduced.size == frames * (2 * grid * grid - span.shape[1]) - 1
+    assert reduced @ reduced == pytest.approx(full @ full, rel=1e-12)
+    names = tuple(params)
+    jac = _jacobian(problem.residuals, params, names)
+    turned = problem.full_jacobian(_jacobian(problem.solver_residuals, params, names))
+    assert np.abs(turned - jac).max() < 1e-6 * np.abs(jac).max()
+
+
+@dataclass(frozen=True)
+class CameraCreep(Effect):
+    """A camera creeping at ``rate`` (m/s): an effect on the markers alone."""
+
+    id: ClassVar[str] = "camera_creep"
+    rate: float = 1e-6
+
+    def measured_markers(self, t, displacement):
+        return displacement + self.rate * t[:, None, None]
+
+
+def test_a_model_whose_effect_moves_the_markers_is_solved_on_every_reading(rec):
+    model = Model(three_element(1.0, 1.0, 1.0), (CameraCreep(),))
+    assert model.moves_markers and not MODEL.moves_markers
+    problem = WholeRecordProblem(rec, model, np.full(3, FORCE_STD), MARKER_STD)
+    params = {**TRUTH, "camera_creep.rate": 1e-6}
+    np.testing.assert_array_equal(problem.solver_residuals(params), problem.residuals(params))
+
+
+def test_markers_still_to_their_rounding_show_no_noise_and_the_fit_weighs_by_its_residuals():
+    """Noise-free positions whose second differences show 3e-17 m (table_I_short's: the
+    rounding of float64 coordinates near a metre), not a camera's noise: 0, so the fit
+    takes its weights from its residuals (``fit_weights`` None), as on any noise-free record."""
+    from rheo_ros.identification.noise import sensor_noise
+    from rheo_ros.identification.pipeline import fit_weights
+    from rheo_ros.sensors import difference_noise
+
+    rec = tiny_record(marker_std=3e-17)
+    assert 1e-17 < difference_noise(rec.markers)[0] < 1e-16
+    noise = sensor_noise(rec)
+    assert noise.marker_std == 0.0 and fit_weights(noise) is None
+
 def test_the_offsets_join_the_solve_last(rec, monkeypatch):
     calls = []
     real = F._least_squares
@@ -524,12 +595,12 @@ def test_the_offsets_join_the_solve_last(rec, monkeypatch):
 
     monkeypatch.setattr(F, "_least_squares", spy)
     fit_record(rec, start(), weights=WEIGHTS, discretisation=False, max_iterations=7)
-    assert calls == [(4, 1e-10, 7), (6, 1e-10, 7)]
+    assert calls == [(4, F.SOLVER_TOLERANCE, 7), (6, F.SOLVER_TOLERANCE, 7)]
     calls.clear()
     est = fit_record(rec, start(), discretisation=False)
     # A loose first solve (it only sets the weights), then one weighted solve per pass.
     assert calls[:2] == [(4, 1e-6, None), (6, 1e-6, None)]
-    assert calls[2:] == [(6, 1e-10, None)] * (est.statistics.passes - 1)
+    assert calls[2:] == [(6, F.SOLVER_TOLERANCE, None)] * (est.statistics.passes - 1)
 
 
 def test_least_squares_caps_the_evaluations_at_two_per_iteration():

@@ -74,10 +74,13 @@ def elastic_shape(mesh: Mesh, gamma: float, order: int = 1) -> tuple[list[np.nda
 @dataclass(frozen=True)
 class Prediction:
     """``force`` (T, n_bottom) in N at the force times; ``displacement`` (Tm, N, 2) in m
-    at the marker times."""
+    at the marker times. Where no effect moves the markers, ``displacement`` is
+    ``depth`` (Tm,) m times ``shape`` (N, 2) m/m, and both are given (else None)."""
 
     force: np.ndarray
     displacement: np.ndarray
+    depth: np.ndarray | None = None
+    shape: np.ndarray | None = None
 
 
 class QuasiStaticFE:
@@ -124,6 +127,7 @@ class QuasiStaticFE:
         # gamma or in an effect's parameter leaves the rheology and the times alone.
         self._responses: dict[tuple, Response] = {}
         self._table: np.ndarray | None = None
+        self._span: tuple[np.ndarray | None] | None = None
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -238,6 +242,35 @@ class QuasiStaticFE:
         k, m = self.mesh.nodes.size, self._table.shape[1] // 2
         return (row[:k], row[k:m]), (row[m:m + k], row[m + k:])
 
+    # Poisson ratios sampled for the span of the markers' shapes (``marker_span``), and the
+    # relative singular value below which a direction is no shape's.
+    SPAN_RATIOS = 32
+    SPAN_TOLERANCE = 1e-12
+
+    def marker_span(self) -> np.ndarray | None:
+        """(2 N, k) orthonormal basis of every marker shape a Poisson ratio gives (the
+        markers' (N, 2) shapes raveled), or None when they span so many directions that
+        working in the span would save nothing.
+
+        The shapes of the whole ratio range lie in a few directions: on the 5 x 5 grid, 8
+        of 50 (measured at refine 1 and 8: the 9th singular value of 200 shapes is 1e-14
+        of the first, the 8th 4e-7); 7 x 7: 12 of 98, 9 x 9: 13 of 162, every shape within
+        6e-13 of the span. A fit's marker residuals then reduce to those directions
+        (``WholeRecordProblem.solver_residuals``). The shapes are solved at
+        ``SPAN_RATIOS`` Chebyshev points of the open range; a span of half as many
+        directions or more is not trusted to be the whole."""
+        if self._span is None:
+            lo, hi = GAMMA_RANGE
+            n = self.SPAN_RATIOS
+            x = np.cos(np.pi * (np.arange(n) + 0.5) / n)
+            ratios = lo + (x + 1) / 2 * (hi - lo)
+            shapes = np.array([self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, g, 0))).displacement.ravel()
+                               for g in ratios])
+            _, sv, vt = np.linalg.svd(shapes, full_matrices=False)
+            k = int(np.sum(sv > self.SPAN_TOLERANCE * sv[0]))
+            self._span = (vt[:k].T.copy(),) if 2 * k < n and 2 * k < shapes.shape[1] else (None,)
+        return self._span[0]
+
     RESPONSES = 8   # kept: a Jacobian's columns, and the trial step beside them
 
     def _response(self, element: Element, profile: StageProfile, t: np.ndarray) -> Response:
@@ -278,5 +311,8 @@ class QuasiStaticFE:
             scaled[order] = r.stress * model.stress_scale(r.strain / self.mesh.height)
             release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
             force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
-            disp = model.measured_markers(marker_t, depth[nf : nf + nm, None, None] * shape.displacement[None])
-        return Prediction(force, disp)
+            at_markers = depth[nf : nf + nm]
+            disp = model.measured_markers(marker_t, at_markers[:, None, None] * shape.displacement[None])
+        if model.moves_markers:
+            return Prediction(force, disp)
+        return Prediction(force, disp, at_markers, shape.displacement)

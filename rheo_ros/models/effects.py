@@ -152,6 +152,11 @@ class Effect:
         """Whether this effect makes the Voigt spring nonlinear (overrides ``voigt_spring``)."""
         return type(self).voigt_spring is not Effect.voigt_spring
 
+    @property
+    def moves_markers(self) -> bool:
+        """Whether this effect changes what the camera sees (overrides ``measured_markers``)."""
+        return type(self).measured_markers is not Effect.measured_markers
+
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         """``force``: (T, nodes) in N at times ``t`` (s) -> the nodal forces the sensor
         feels; ``release``: when the stage let go (None: not yet)."""
@@ -646,6 +651,11 @@ class Model:
         for effect in self.effects:
             scale = scale * effect.stress_scale(strain)
         return scale
+
+    @property
+    def moves_markers(self) -> bool:
+        """Whether an effect changes what the camera sees of the elastic shape."""
+        return any(e.moves_markers for e in self.effects)
 
     @property
     def voigt_spring(self) -> Callable[[np.ndarray], np.ndarray] | None:

@@ -370,7 +370,7 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     def total_stress(y: np.ndarray, rate: float | None) -> np.ndarray:
         if rate is None:
             return np.zeros(y.shape[1])
-        f = np.array([voigt_force(u) for u in y[0]])
+        f = E * height * spring(y[0] / height)
         return (c1 * c2 * rate + c2 * f) / (c1 + c2) + y[2:].sum(axis=0)
 
     stress, strain = np.zeros_like(t), np.zeros_like(t)
