@@ -636,7 +636,9 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
 
     noise = cell_noise(None if readout.negatives else np.zeros(forces.shape[1]))
     # Below this a cell's noise is numerical, not a sensor's: 14 bits of the largest reading.
-    noise_free = not noise > 1e-4 * max(readout.largest, 0.0)
+    # A noise the readings cannot show (too few live three frames in a row: a block
+    # saturating the array most of the time) is not known, not zero: the parameters' then.
+    noise_free = bool(np.isfinite(noise)) and not noise > 1e-4 * max(readout.largest, 0.0)
     low = readout.smallest_positive
     if readout.negatives:
         threshold, shown = LINEAR, f"{readout.negatives} readings below zero"

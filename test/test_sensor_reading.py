@@ -173,11 +173,14 @@ def test_a_push_read_only_at_saturation_is_refused_in_one_line(material, seed, p
     relaxes under it; every reading of the pull and the keep is at saturation. Refused,
     naming the stream and each segment's saturation (before, the closed forms failed on
     "the wrong sign for a push" and a fit from elsewhere called the flat line E +- 0.4 %).
-    No segment shows its noise: none is read off the saturated readings."""
+    No segment shows its noise: none is read off the saturated readings; the sensor's
+    cell noise is then the parameters' (it had been read as 0, a noise-free array)."""
     data = g.synthesize(material=material, sensor="clipped", seed=seed, profile=profile)
     rec = Setup(parse_params(CONTRACT_ONLY, "<test>")).record(data.stage_t, data.depth, data.tactile_t,
                                                                data.images, data.marker_t, data.markers)
     assert np.isnan(force_noise(rec)[0]).all()
+    # Not shown is not zero: the cell noise is the parameters' (the default 100 Pa), said so.
+    assert rec.sensor.tactile.noise == 100.0 and rec.sensor.source["tactile.noise"] == "parameters"
     with pytest.raises(RecordError, match=r"^<memory>: /tactile/pressure: through the pull and the keep every segment "
                                           r"reads at its saturation \(0\.5, 1, 1, 1, 0\.5 N, P1, P2, \.\.\.\) or under "
                                           r"its dead band \(too few readings between them to show a noise\): the "

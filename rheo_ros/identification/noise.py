@@ -83,9 +83,24 @@ class SensorNoise:
                        marker_floor=float(np.hypot(self.marker_floor, floor["markers"])))
 
 
+def cells_noise(record: Record) -> np.ndarray:
+    """(nodes,) N: each segment's noise from its cells' (the sensor's cell noise, which
+    the array's segments show or the parameters state); NaN where none is known."""
+    tactile = None if record.sensor is None else record.sensor.tactile
+    if tactile is None or not tactile.noise > 0:
+        return np.full(record.force.shape[1], np.nan)
+    return tactile.noise * np.sqrt(tactile.cells_per_segment) * tactile.cell_area
+
+
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each tactile segment's noise over its live readings: (nodes,) std (N, NaN where
-    too few live readings), (T, nodes) the live readings, (nodes,) differences counted."""
+    too few live readings), (T, nodes) the live readings, (nodes,) differences counted.
+
+    A segment whose own readings show no level (live too seldom three frames in a row:
+    saturated, or under the dead band) takes its margins from its cells' noise
+    (``cells_noise``): without them, a segment saturated most of the time kept its
+    readings up to the top as measures while its cells clipped one by one (seen: E 51 %
+    low, the misfit "1e7 x the noise")."""
     force = record.force
     nodes = force.shape[1]
     band = record.dead_band
@@ -95,11 +110,12 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     live = np.ones(force.shape, bool) if band is None else (force > band.force) & (force < band.saturation)
     std = np.full(nodes, np.nan)
     counts = np.zeros(nodes, int)
+    from_cells = cells_noise(record)
     for _ in range(2 if band is not None else 1):
         for j in range(nodes):
             std[j], counts[j] = difference_noise(force[:, j], live[:, j])
         if band is not None:
-            std0 = np.nan_to_num(std, nan=0.0)
+            std0 = np.nan_to_num(np.where(np.isfinite(std), std, from_cells), nan=0.0)
             # The top by each reading: one above it is clipped and bounds the force from below
             # (``fit.bound_excess``); one below it, in a window the median puts above, would
             # be neither a measure nor a bound of the dead band's side (seen: E 8 std low).
@@ -174,6 +190,7 @@ def sensor_noise(record: Record) -> SensorNoise:
     readings that are isolated spikes are left out of the live ones."""
     std, live, counts = force_noise(record)
     spikes = isolated_spikes(record.force, std)
+    std = np.where(np.isfinite(std), std, cells_noise(record))   # the weights and the judgement's
     marker_std, marker_samples = difference_noise(record.markers)
     # As the sensor reading (``read_sensor``): below a nanometre the coordinates' own
     # rounding, not noise (a float64 position's 3e-17 m weighed the markers 1e16 x the
