@@ -761,7 +761,7 @@ def test_readings_live_by_their_running_median_are_not_those_the_noise_lifted():
     # A slow swing about the threshold (a drift settling through it), then the noise.
     force = level + 2 * std * np.sin(2 * np.pi * t / 40.0)
     readings = (force + std * rng.standard_normal(t.size))[:, None]
-    rec = SimpleNamespace(force=readings, dead_band=band)
+    rec = SimpleNamespace(force=readings, dead_band=band, sensor=None)
     _, live, _ = force_noise(rec)
     bias_median = float(np.mean((readings[:, 0] - force)[live[:, 0]])) / std
     own = band.live(readings, np.array([std]))[:, 0]
