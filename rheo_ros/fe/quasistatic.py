@@ -128,6 +128,7 @@ class QuasiStaticFE:
         self._responses: dict[tuple, Response] = {}
         self._table: np.ndarray | None = None
         self._span: tuple[np.ndarray | None] | None = None
+        self._nodes: tuple[np.ndarray, list[ElasticShape]] | None = None
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -221,16 +222,23 @@ class QuasiStaticFE:
         phi, force = self._shape_table(float(gamma))[0]
         return ElasticShape(phi.reshape(-1, 2), force)
 
+    def _node_shapes(self) -> tuple[np.ndarray, list[ElasticShape]]:
+        """The table's Chebyshev nodes on [-1, 1] and the exact shapes solved there (once)."""
+        if self._nodes is None:
+            lo, hi = self.TABLE_GAMMA
+            x = np.cos(np.pi * (np.arange(self.TABLE_NODES) + 0.5) / self.TABLE_NODES)
+            self._nodes = (x, [self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, lo + (xi + 1) / 2
+                                                                                 * (hi - lo), 0))) for xi in x])
+        return self._nodes
+
     def _shape_table(self, gamma: float) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """(shape, bottom force) and their derivatives in gamma, from the table."""
         lo, hi = self.TABLE_GAMMA
         if not lo <= gamma <= hi:
             raise ValueError(f"Poisson ratio {gamma} outside the table's [{lo}, {hi}]")
         if self._table is None:
+            x, shapes = self._node_shapes()
             n = self.TABLE_NODES
-            x = np.cos(np.pi * (np.arange(n) + 0.5) / n)
-            shapes = [self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, lo + (xi + 1) / 2 * (hi - lo), 0)))
-                      for xi in x]
             values = np.array([np.concatenate([s.displacement.ravel(), s.bottom_force]) for s in shapes])
             coef = chebyshev.chebfit(x, values, n - 1)
             slope = np.vstack([chebyshev.chebder(coef) * (2 / (hi - lo)), np.zeros((1, coef.shape[1]))])
@@ -242,9 +250,7 @@ class QuasiStaticFE:
         k, m = self.mesh.nodes.size, self._table.shape[1] // 2
         return (row[:k], row[k:m]), (row[m:m + k], row[m + k:])
 
-    # Poisson ratios sampled for the span of the markers' shapes (``marker_span``), and the
-    # relative singular value below which a direction is no shape's.
-    SPAN_RATIOS = 32
+    # The relative singular value below which a direction is no marker shape's (``marker_span``).
     SPAN_TOLERANCE = 1e-12
 
     def marker_span(self) -> np.ndarray | None:
@@ -253,22 +259,19 @@ class QuasiStaticFE:
         working in the span would save nothing.
 
         The shapes of the whole ratio range lie in a few directions: on the 5 x 5 grid, 8
-        of 50 (measured at refine 1 and 8: the 9th singular value of 200 shapes is 1e-14
-        of the first, the 8th 4e-7); 7 x 7: 12 of 98, 9 x 9: 13 of 162, every shape within
-        6e-13 of the span. A fit's marker residuals then reduce to those directions
-        (``WholeRecordProblem.solver_residuals``). The shapes are solved at
-        ``SPAN_RATIOS`` Chebyshev points of the open range; a span of half as many
-        directions or more is not trusted to be the whole."""
+        of 50 (measured at refine 1 and 8: the 9th singular value of 200 shapes over the
+        range is 1e-14 of the first, the 8th 4e-7); 7 x 7: 12 of 98, 9 x 9: 13 of 162. A
+        fit's marker residuals then reduce to those directions
+        (``WholeRecordProblem.solver_residuals``). The span is that of the implied-force
+        table's solved shapes (``TABLE_NODES`` ratios over ``TABLE_GAMMA``, solved once
+        for both): every shape of the open range lies within 7e-12 of it, -0.99999 and
+        0.49999 included (measured on the three grids); a span of half as many directions
+        as shapes or more is not trusted to be the whole."""
         if self._span is None:
-            lo, hi = GAMMA_RANGE
-            n = self.SPAN_RATIOS
-            x = np.cos(np.pi * (np.arange(n) + 0.5) / n)
-            ratios = lo + (x + 1) / 2 * (hi - lo)
-            shapes = np.array([self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, g, 0))).displacement.ravel()
-                               for g in ratios])
+            shapes = np.array([s.displacement.ravel() for s in self._node_shapes()[1]])
             _, sv, vt = np.linalg.svd(shapes, full_matrices=False)
             k = int(np.sum(sv > self.SPAN_TOLERANCE * sv[0]))
-            self._span = (vt[:k].T.copy(),) if 2 * k < n and 2 * k < shapes.shape[1] else (None,)
+            self._span = (vt[:k].T.copy(),) if 2 * k < len(shapes) and 2 * k < shapes.shape[1] else (None,)
         return self._span[0]
 
     RESPONSES = 8   # kept: a Jacobian's columns, and the trial step beside them
