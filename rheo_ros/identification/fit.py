@@ -193,7 +193,7 @@ class WholeRecordProblem:
         span of the elastic shapes (``QuasiStaticFE.marker_span``, k directions of 2 N)
         and one fixed row for the data outside it. An orthogonal change of basis that
         drops rows no parameter moves: the same sum of squares and the same J^T J, on
-        (Tm k + 1) marker rows instead of Tm 2 N (on the 5 x 5 grid, 8 + of 50).
+        (Tm k + 1) marker rows instead of Tm 2 N (on the 5 x 5 grid, 8 a frame of 50).
         ``full_jacobian`` turns the solver's Jacobian back."""
         reduced = self._markers_in_span()
         if reduced is None:
