@@ -92,7 +92,7 @@ class Record:
         if band is not None and np.isfinite(tactile.noise):
             cells = np.asarray(band.cells, float)
             per_cell = tactile.cell_area * cells   # a segment's N per Pa in each of its cells
-            used = band.excess(tactile.noise * tactile.cell_area * np.sqrt(cells)) / per_cell
+            used = band.excess(tactile.segment_noise) / per_cell
             measured = None if band.measured_excess is None else float(np.max(band.measured_excess / per_cell))
             sensor["tactile"]["excess"] = {"used": float(np.max(used)), "measured": measured}
         return sensor

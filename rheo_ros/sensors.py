@@ -304,6 +304,11 @@ class TactileArray:
     def cell_area(self) -> float:
         return (self.width / self.cols) * (self.depth / self.rows)
 
+    @property
+    def segment_noise(self) -> np.ndarray:
+        """(nodes,) N: each segment's force std from ``noise``, its cells' (sqrt(cells) cells)."""
+        return self.noise * np.sqrt(self.cells_per_segment) * self.cell_area
+
     @cached_property
     def _spread(self) -> np.ndarray:
         """(nodes, cols): pressure per column (Pa) per newton on each node."""
@@ -400,6 +405,14 @@ def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[floa
 MAX_DISTINCT = 1 << 16     # more distinct readings than this: no lattice to read (continuous)
 MIN_LATTICE = 50           # distinct readings a quantisation step is read from
 MARKER_RESOLUTION = 1e-9   # m: a marker noise below this is numerical (a noise-free record)
+
+
+def marker_noise(markers: np.ndarray) -> tuple[float, int]:
+    """The camera's noise from the markers (T, N, 2) m (``difference_noise``) and the
+    differences counted; 0 below ``MARKER_RESOLUTION``: no camera resolves a nanometre,
+    it is the coordinates' rounding (float64 positions near a metre show 3e-17 m)."""
+    std, count = difference_noise(markers)
+    return (0.0 if std < MARKER_RESOLUTION else std), count
 NOISE_AGREES = 1.5         # a stated noise within this factor of the data's agrees with them
 
 
@@ -668,8 +681,6 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
                             f"{noise:.3g} Pa")
     else:
         noise, source["tactile.noise"] = stated.noise, "parameters"
-    if marker_std < MARKER_RESOLUTION:
-        marker_std = 0.0   # numerical: no camera resolves a nanometre
     if np.isfinite(marker_std):
         if "markers.noise" in given and not _agrees(stated_marker_noise, marker_std):
             warnings.append(f"markers.noise: the parameters say {stated_marker_noise:g} m, the markers show "

@@ -534,7 +534,7 @@ def test_the_solver_works_on_the_markers_in_the_span_of_the_shapes(grid):
     back is every reading's (central differences of both; 1e-6 of the largest entry)."""
     mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, rows=grid, cols=grid)
     forward = QuasiStaticFE(mesh)
-    span = forward.marker_span()
+    span = forward.marker_span
     assert span.shape == (2 * grid * grid, {3: 2, 5: 8}[grid])
     np.testing.assert_allclose(span.T @ span, np.eye(span.shape[1]), atol=1e-12)
     for gamma in (-0.99, 0.0, 0.3, 0.499):

@@ -27,7 +27,7 @@ from rheo_ros.fe.quasistatic import QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import Element, three_element
 from rheo_ros.record import Record
-from rheo_ros.sensors import MarkerCamera, SensorReading, TactileArray, TactileReadout, difference_noise, read_sensor
+from rheo_ros.sensors import MarkerCamera, SensorReading, TactileArray, TactileReadout, marker_noise, read_sensor
 
 FORWARD_MODELS_KEPT = 4
 _FORWARD_MODELS: dict[tuple, QuasiStaticFE] = {}   # Setup.forward_model's, by geometry
@@ -264,7 +264,7 @@ class Setup:
         value set to it)."""
         given = frozenset(k for k in ("tactile.threshold", "tactile.resolution", "tactile.noise", "markers.noise")
                           if self.params[k] != DEFAULTS[k])
-        marker_std = difference_noise(markers)[0] if len(markers) else float("nan")
+        marker_std = marker_noise(markers)[0] if len(markers) else float("nan")
         sensor = read_sensor(self.tactile, readout, sums, marker_std, self.params["markers.noise"], given)
         return sensor, sensor.tactile.segment_forces(sums, t)
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import zlib
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.polynomial import chebyshev
@@ -127,8 +128,6 @@ class QuasiStaticFE:
         # gamma or in an effect's parameter leaves the rheology and the times alone.
         self._responses: dict[tuple, Response] = {}
         self._table: np.ndarray | None = None
-        self._span: tuple[np.ndarray | None] | None = None
-        self._nodes: tuple[np.ndarray, list[ElasticShape]] | None = None
 
     def finer(self) -> QuasiStaticFE:
         """The same model on a mesh twice as fine (its difference from this one measures
@@ -222,14 +221,13 @@ class QuasiStaticFE:
         phi, force = self._shape_table(float(gamma))[0]
         return ElasticShape(phi.reshape(-1, 2), force)
 
+    @cached_property
     def _node_shapes(self) -> tuple[np.ndarray, list[ElasticShape]]:
-        """The table's Chebyshev nodes on [-1, 1] and the exact shapes solved there (once)."""
-        if self._nodes is None:
-            lo, hi = self.TABLE_GAMMA
-            x = np.cos(np.pi * (np.arange(self.TABLE_NODES) + 0.5) / self.TABLE_NODES)
-            self._nodes = (x, [self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, lo + (xi + 1) / 2
-                                                                                 * (hi - lo), 0))) for xi in x])
-        return self._nodes
+        """The table's Chebyshev nodes on [-1, 1] and the exact shapes solved there."""
+        lo, hi = self.TABLE_GAMMA
+        x = np.cos(np.pi * (np.arange(self.TABLE_NODES) + 0.5) / self.TABLE_NODES)
+        return x, [self._observed(*(part[0] for part in elastic_shape(self.fe_mesh, lo + (xi + 1) / 2 * (hi - lo), 0)))
+                   for xi in x]
 
     def _shape_table(self, gamma: float) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
         """(shape, bottom force) and their derivatives in gamma, from the table."""
@@ -237,7 +235,7 @@ class QuasiStaticFE:
         if not lo <= gamma <= hi:
             raise ValueError(f"Poisson ratio {gamma} outside the table's [{lo}, {hi}]")
         if self._table is None:
-            x, shapes = self._node_shapes()
+            x, shapes = self._node_shapes
             n = self.TABLE_NODES
             values = np.array([np.concatenate([s.displacement.ravel(), s.bottom_force]) for s in shapes])
             coef = chebyshev.chebfit(x, values, n - 1)
@@ -253,6 +251,7 @@ class QuasiStaticFE:
     # The relative singular value below which a direction is no marker shape's (``marker_span``).
     SPAN_TOLERANCE = 1e-12
 
+    @cached_property
     def marker_span(self) -> np.ndarray | None:
         """(2 N, k) orthonormal basis of every marker shape a Poisson ratio gives (the
         markers' (N, 2) shapes raveled), or None when they span so many directions that
@@ -267,12 +266,10 @@ class QuasiStaticFE:
         for both): every shape of the open range lies within 7e-12 of it, -0.99999 and
         0.49999 included (measured on the three grids); a span of half as many directions
         as shapes or more is not trusted to be the whole."""
-        if self._span is None:
-            shapes = np.array([s.displacement.ravel() for s in self._node_shapes()[1]])
-            _, sv, vt = np.linalg.svd(shapes, full_matrices=False)
-            k = int(np.sum(sv > self.SPAN_TOLERANCE * sv[0]))
-            self._span = (vt[:k].T.copy(),) if 2 * k < len(shapes) and 2 * k < shapes.shape[1] else (None,)
-        return self._span[0]
+        shapes = np.array([s.displacement.ravel() for s in self._node_shapes[1]])
+        _, sv, vt = np.linalg.svd(shapes, full_matrices=False)
+        k = int(np.sum(sv > self.SPAN_TOLERANCE * sv[0]))
+        return vt[:k].T.copy() if 2 * k < len(shapes) and 2 * k < shapes.shape[1] else None
 
     RESPONSES = 8   # kept: a Jacobian's columns, and the trial step beside them
 

@@ -7,6 +7,7 @@ problem, the best any unbiased estimator can do on such data.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.differentiate import jacobian
@@ -134,22 +135,18 @@ class WholeRecordProblem:
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
-        self._in_span: tuple[np.ndarray, np.ndarray, float] | None = None
 
+    @cached_property
     def _markers_in_span(self) -> tuple[np.ndarray, np.ndarray, float] | None:
         """The solver's markers (None: every row): the span of the elastic shapes (the
         model reaches no other direction), the centred data in it, and the size of the
         rest. Found on first use: only the fitted problem needs it, not its finer meshes'."""
-        if self._in_span is None:
-            span = (None if self.model.moves_markers or not np.isfinite(self._disp).all()
-                    else self.forward.marker_span())
-            if span is None:
-                self._in_span = (None, None, 0.0)
-            else:
-                centred = (self._disp - self._disp.mean(axis=0)).reshape(len(self._disp), -1)
-                inside = centred @ span
-                self._in_span = (span, inside, float(np.linalg.norm(centred - inside @ span.T)))
-        return None if self._in_span[0] is None else self._in_span
+        span = None if self.model.moves_markers or not np.isfinite(self._disp).all() else self.forward.marker_span
+        if span is None:
+            return None
+        centred = (self._disp - self._disp.mean(axis=0)).reshape(len(self._disp), -1)
+        inside = centred @ span
+        return span, inside, float(np.linalg.norm(centred - inside @ span.T))
 
     @property
     def live_mask(self) -> np.ndarray:
@@ -195,7 +192,7 @@ class WholeRecordProblem:
         drops rows no parameter moves: the same sum of squares and the same J^T J, on
         (Tm k + 1) marker rows instead of Tm 2 N (on the 5 x 5 grid, 8 a frame of 50).
         ``full_jacobian`` turns the solver's Jacobian back."""
-        reduced = self._markers_in_span()
+        reduced = self._markers_in_span
         if reduced is None:
             return self.residuals(params)
         span, inside, outside = reduced
@@ -208,7 +205,7 @@ class WholeRecordProblem:
     def full_jacobian(self, jac: np.ndarray) -> np.ndarray:
         """The Jacobian of ``residuals`` from that of ``solver_residuals`` (the markers'
         rows turned back from the span; exact, every column lying in it)."""
-        reduced = self._markers_in_span()
+        reduced = self._markers_in_span
         if reduced is None:
             return jac
         span = reduced[0]

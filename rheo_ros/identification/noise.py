@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rheo_ros.record import Record
-from rheo_ros.sensors import MARKER_RESOLUTION, difference_noise
+from rheo_ros.sensors import difference_noise, marker_noise
 
 __all__ = ["SensorNoise", "Weights", "despiked", "difference_noise", "force_noise", "isolated_spikes",
            "sensor_noise", "spikes_note"]
@@ -89,7 +89,7 @@ def cells_noise(record: Record) -> np.ndarray:
     tactile = None if record.sensor is None else record.sensor.tactile
     if tactile is None or not tactile.noise > 0:
         return np.full(record.force.shape[1], np.nan)
-    return tactile.noise * np.sqrt(tactile.cells_per_segment) * tactile.cell_area
+    return tactile.segment_noise
 
 
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -191,9 +191,7 @@ def sensor_noise(record: Record) -> SensorNoise:
     std, live, counts = force_noise(record)
     spikes = isolated_spikes(record.force, std)
     std = np.where(np.isfinite(std), std, cells_noise(record))   # the weights and the judgement's
-    marker_std, marker_samples = difference_noise(record.markers)
-    # As the sensor reading (``read_sensor``): below a nanometre the coordinates' own
-    # rounding, not noise (a float64 position's 3e-17 m weighed the markers 1e16 x the
-    # force on table_I_short, and a scaled E fitted them as well).
-    marker_std = 0.0 if marker_std < MARKER_RESOLUTION else marker_std
+    # (Taken for noise, a float64 position's 3e-17 m of rounding weighed the markers 1e16 x
+    # the force on table_I_short, and a scaled E fitted them as well.)
+    marker_std, marker_samples = marker_noise(record.markers)
     return SensorNoise(std, live & ~spikes, marker_std, counts, marker_samples, spikes)
