@@ -212,3 +212,33 @@ def test_slow_retraction_keeps_contact_while_the_specimen_can_follow():
     lost = release & ~r.contact
     assert lost.any()                                                        # and then it lets go
     assert np.all(r.strain[lost] * 0.08 >= r.stage_depth[lost] - 1e-9)     # the stage is above it
+
+
+@pytest.mark.parametrize("retract_speed", [1e-3, 0.02, np.inf])
+def test_block_steps_give_the_step_by_step_run(monkeypatch, retract_speed):
+    """``simulate`` propagates stretches of equal steps ``BLOCK`` at a time (the same
+    linear map, other rounding); two pushes, the stage leaving the specimen and coming
+    back onto it (at 1 mm/s it lets go 4.7 s into a slow retraction: inside a block),
+    must give the step-by-step run's samples. Measured: 1e-11 of the peak force, 1e-13
+    m; tolerances 1e-9 of the peak and 1e-12 m, and 1e-6 of the peak within two samples
+    of a change of contact (its instant, found to dt / 2^24, may move by that unit). Markers asked at some samples only are
+    those samples' and NaN elsewhere."""
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    push = StageProfile(keep_time=3.0, release_time=12.0, retract_speed=retract_speed)
+    profile = StageProfile.repeated(push, 2, 1.0)
+    element, gamma = three_element(3.33e4, 1.69e5, 3.11e7), 0.332
+    t = sample_times(profile.t_end, 100.0)
+    every_tenth = np.arange(t.size) % 10 == 0
+    blocks = DynamicFE(mesh, element, gamma).simulate(profile, t, every_tenth)
+    monkeypatch.setattr(DynamicFE, "BLOCK", 2**40)   # no stretch that long: every step alone
+    steps = DynamicFE(mesh, element, gamma).simulate(profile, t)
+    assert (blocks.contact == steps.contact).all() and (~steps.contact).any()
+    peak = np.abs(steps.bottom_force).max()
+    # Where the contact changes, a unit of dt / 2^24 in the instant moves the force by
+    # the stage's speed x that time x the stiffness (8.7e-8 of the peak measured).
+    event = np.convolve(np.diff(steps.contact.astype(int), prepend=1) != 0, np.ones(5), "same") > 0
+    np.testing.assert_allclose(blocks.bottom_force[~event], steps.bottom_force[~event], rtol=0, atol=1e-9 * peak)
+    np.testing.assert_allclose(blocks.bottom_force[event], steps.bottom_force[event], rtol=0, atol=1e-6 * peak)
+    np.testing.assert_allclose(blocks.strain, steps.strain, rtol=0, atol=1e-12 / mesh.height)
+    np.testing.assert_allclose(blocks.displacement[every_tenth], steps.displacement[every_tenth], rtol=0, atol=1e-12)
+    assert np.isnan(blocks.displacement[~every_tenth]).all()

@@ -135,6 +135,8 @@ class _Shared:
     modes: dict[Contact, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     phi: dict[tuple[Contact, float], np.ndarray] = field(default_factory=dict)
     ladders: dict[tuple[Contact, float], list[np.ndarray]] = field(default_factory=dict)
+    blocks: dict[tuple[Contact, float], tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
+    readouts: dict[Contact, np.ndarray] = field(default_factory=dict)
 
 
 # Specimens whose matrices a process keeps (~0.3 GB each for the 65 x 65 mesh's ladders).
@@ -181,6 +183,7 @@ class DynamicFE:
         self.ig, self.igd = 2 * n + nq * n, 2 * n + nq * n + 1
         self._bottom_y, self._top_y = self.structure.bottom_y, self.structure.top_y
         self._modes, self._phi, self._ladders = shared.modes, shared.phi, shared.ladders
+        self._blocks, self._readouts = shared.blocks, shared.readouts
         self.reset()
 
     def reset(self, t: float = 0.0) -> None:
@@ -235,6 +238,45 @@ class DynamicFE:
 
     def _propagator(self, contact: Contact, dt: float) -> np.ndarray:
         return self._cached(self._phi, contact, dt, lambda: expm(self._mode(contact)[0] * dt))
+
+    BLOCK = 64   # steps ``simulate`` propagates at once along a stretch of equal steps
+
+    def _readout(self, contact: Contact) -> np.ndarray:
+        """Rows that read off a state everything a sample keeps and a step checks: each
+        tactile segment's force, the markers' x and y, the top's sinking and the force
+        the stage presses with."""
+        if contact not in self._readouts:
+            marker_dofs = self.structure.marker_dofs.ravel()
+            markers = np.zeros((marker_dofs.size, self.size))
+            markers[np.arange(marker_dofs.size), marker_dofs] = 1.0   # iu starts at 0
+            sinking = np.zeros((1, self.size))
+            sinking[0, self._top_y] = -1.0 / self._top_y.size
+            pressing = -self._mode("held")[1][self._top_y].sum(axis=0, keepdims=True)
+            force = self.structure.segments @ self._mode(contact)[1][self._bottom_y]
+            self._readouts[contact] = np.vstack([force, markers, sinking, pressing])
+        return self._readouts[contact]
+
+    def _block(self, contact: Contact, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The readouts after each of ``BLOCK`` steps of ``dt`` (R Phi, R Phi^2, ...) split
+        into (force, sinking and pressing rows stacked: BLOCK * (segments + 2) x states;
+        marker rows: BLOCK x markers x states) and the propagator of the whole block
+        Phi^BLOCK: a stretch of equal steps costs one product with the readouts' rows and
+        one with the state's, not ``BLOCK`` with the state's (~60 readouts, ~900 states),
+        and the markers' rows only at the steps that sample them."""
+        def make() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            phi = self._propagator(contact, dt)
+            rows = [self._readout(contact) @ phi]
+            for _ in range(self.BLOCK - 1):
+                rows.append(rows[-1] @ phi)
+            power = phi
+            for _ in range(self.BLOCK.bit_length() - 1):   # BLOCK is a power of two
+                power = power @ power
+            stacked = np.stack(rows)
+            n_force, n_markers = self.structure.segments.shape[0], self.structure.marker_dofs.size
+            scalar = np.ascontiguousarray(np.delete(stacked, np.s_[n_force:n_force + n_markers], axis=1))
+            markers = np.ascontiguousarray(stacked[:, n_force:n_force + n_markers])
+            return scalar.reshape(-1, self.size), markers, power
+        return self._cached(self._blocks, contact, dt, make)
 
     # -- outputs of the current state -----------------------------------------------------
 
@@ -352,33 +394,93 @@ class DynamicFE:
                 z = phi @ z
         return z
 
-    def simulate(self, profile: StageProfile, t: np.ndarray) -> FEResult:
-        """Run the stage ``profile`` from rest and sample at the sorted times ``t`` (s).
+    def simulate(self, profile: StageProfile, t: np.ndarray, markers_at: np.ndarray | None = None) -> FEResult:
+        """Run the stage ``profile`` from rest and sample at the sorted times ``t`` (s);
+        the markers only where ``markers_at`` (a mask over ``t``; default all), NaN at
+        the other samples.
 
         Steps go from sample to sample with the profile's breakpoints added, so the
         stage is linear within each step and the result is exact at any sample rate.
+        Along a stretch of equal steps (one step length, one stage speed, one contact)
+        ``BLOCK`` steps go at once (``_block``); a block in which the stage lets go of the
+        specimen, or reaches it again, is stepped one by one instead.
         """
         t = np.asarray(t, dtype=float)
         knots = [k[0] for k in profile.knots() if np.isfinite(k[0])]
         grid = np.union1d(t, knots)
         depths = profile.depth_at(grid)
         self.reset(min(grid[0], 0.0))
-        states = np.zeros((t.size, self.size))
-        held = np.zeros(t.size, bool)
-        keep = np.searchsorted(grid, t)
         slot = np.full(grid.size, -1)
-        slot[keep] = np.arange(t.size)
+        slot[np.searchsorted(grid, t)] = np.arange(t.size)
+        wanted = np.zeros(grid.size, bool)
+        wanted[slot >= 0] = True if markers_at is None else np.asarray(markers_at, bool)
+        n_force, n_markers = self.structure.segments.shape[0], self.structure.marker_dofs.size
+        scalars = np.zeros((t.size, n_force + 2))   # segment forces, sinking, pressing
+        markers = np.full((t.size, n_markers), np.nan)
+        held = np.zeros(t.size, bool)
         # An instant release: the step onto its time arrives at the push's depth, then leaves.
         jumps = {p.t_keep_end: p.depth for p in profile.pushes if not np.isfinite(p.retract_speed)}
-        for i, ti in enumerate(grid):
-            if ti in jumps:
-                self.advance(ti, jumps[ti])
-            self.advance(ti, float(depths[i]))
+        steady = self._steady_steps(grid, depths, np.isin(grid, list(jumps)))
+        B, i = self.BLOCK, 0
+        while i < grid.size:
+            block = np.s_[i:i + B]
+            if steady[i] >= B and self._advance_block(grid[block], depths[block], slot[block], wanted[block],
+                                                      scalars, markers, held):
+                i += B
+                continue
+            if grid[i] in jumps:
+                self.advance(grid[i], jumps[grid[i]])
+            self.advance(grid[i], float(depths[i]))
             if slot[i] >= 0:
-                states[slot[i]], held[slot[i]] = self.z, self.contact == "held"
-        force = np.empty((t.size, self.mesh.cols))
-        for contact, mask in (("held", held), ("free", ~held)):
-            force[mask] = states[mask] @ (self.structure.segments @ self._mode(contact)[1][self._bottom_y]).T
-        strain = -states[:, self._top_y].mean(axis=1) / self.mesh.height
-        disp = self.structure.marker_displacement(states[:, self.iu])
-        return FEResult(t, profile.depth_at(t), disp, force, held, strain)
+                read = self._readout(self.contact) @ self.z
+                scalars[slot[i]], held[slot[i]] = np.delete(read, np.s_[n_force:n_force + n_markers]), self.contact == "held"
+                if wanted[i]:
+                    markers[slot[i]] = read[n_force:n_force + n_markers]
+            i += 1
+        strain = scalars[:, n_force] / self.mesh.height
+        return FEResult(t, profile.depth_at(t), markers.reshape(t.size, -1, 2), scalars[:, :n_force], held, strain)
+
+    def _steady_steps(self, grid: np.ndarray, depths: np.ndarray, jump: np.ndarray) -> np.ndarray:
+        """For each step (onto ``grid[i]``), how many steps from it on share its length and
+        the stage's speed, none of them an instant release (0 for a zero-length step)."""
+        dt = np.diff(grid, prepend=self.t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            speed = np.diff(depths, prepend=self.depth) / dt
+        scale = np.nanmax(np.abs(speed[dt > 0]), initial=0.0)
+        ok = (dt > 0) & ~jump
+        like = np.zeros(grid.size, bool)   # step i continues step i - 1's stretch
+        like[1:] = (ok[1:] & ok[:-1] & (np.abs(dt[1:] - dt[:-1]) <= 1e-9 * dt[1:])
+                    & (np.abs(speed[1:] - speed[:-1]) <= 1e-9 * scale))
+        steady = np.zeros(grid.size, int)
+        run = 0
+        for i in range(grid.size - 1, -1, -1):
+            run = (run + 1 if i + 1 < grid.size and like[i + 1] else 1) if ok[i] else 0
+            steady[i] = run
+        return steady
+
+    def _advance_block(self, times: np.ndarray, depths: np.ndarray, slots: np.ndarray, wanted: np.ndarray,
+                       scalars: np.ndarray, markers: np.ndarray, held: np.ndarray) -> bool:
+        """Steps onto ``times`` (``BLOCK`` equal steps, the stage linear to ``depths``) at
+        once, their samples into ``scalars`` and, where ``wanted``, ``markers``; False, with
+        nothing changed, when within them the stage lets go of the specimen or reaches it
+        again (``advance`` finds the instant)."""
+        dt, d0 = times[0] - self.t, self.depth
+        z = self.z.copy()
+        if self.contact == "held":
+            z[self.ig], z[self.igd] = -d0, -(depths[0] - d0) / dt
+        rows, marker_rows, power = self._block(self.contact, dt)
+        read = (rows @ z).reshape(times.size, -1)
+        if self.contact == "held":
+            if depths[0] < d0 and (read[:, -1] < 0.0).any():
+                return False
+        elif (read[:, -2] < depths).any():
+            return False
+        sampled = slots >= 0
+        scalars[slots[sampled]], held[slots[sampled]] = read[sampled], self.contact == "held"
+        seen = np.flatnonzero(sampled & wanted)
+        if seen.size == times.size:   # every step (no copy of the rows)
+            markers[slots] = (marker_rows.reshape(-1, self.size) @ z).reshape(times.size, -1)
+        elif seen.size:
+            markers[slots[seen]] = marker_rows[seen] @ z
+        self.z, self.t, self.depth = power @ z, float(times[-1]), float(depths[-1])
+        return True

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from struct import error as struct_error
 from typing import Any
@@ -91,7 +92,7 @@ class BagWriter:
     def __exit__(self, *exc: object) -> None:
         self.writer.close()
         if exc[0] is None:
-            with_chunk_crcs(self.path / f"{self.path.name}.mcap", self.compress)
+            with_chunk_crcs(self.path / f"{self.path.name}.mcap")
 
     def write(self, topic: str, t_ns: int, msg: Any) -> None:
         conn = self.connections[topic]
@@ -114,34 +115,40 @@ class BagWriter:
             storage.bio.flush()
 
 
-def with_chunk_crcs(mcap: Path, compress: bool = True) -> None:
-    """Rewrite ``mcap`` through mcap's writer, record for record, so that every chunk
-    carries the CRC of its data: rosbags' writer leaves them 0 (unchecked), and a chunk
-    overwritten on disk then decoded as garbage (``check_chunks`` names it instead)."""
-    from mcap.records import Channel, Header, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
-    from mcap.writer import CompressionType
-    from mcap.writer import Writer as McapWriter
+def with_chunk_crcs(mcap: Path) -> None:
+    """Set every chunk's CRC of its data in ``mcap``: rosbags' writer leaves them 0
+    (unchecked), and a chunk overwritten on disk then decoded as garbage (``check_chunks``
+    names it instead). The CRC is a fixed-size field of the chunk record (after its
+    opcode, length and three u64s: the MCAP specification's Chunk), so it is set in
+    place: the file keeps its layout, its indexes and the summary's offsets (a rewrite
+    through mcap's writer cost as much as writing the bag). The chunks are found by the
+    summary's chunk index."""
+    import zlib
 
-    rewritten = mcap.with_name(mcap.name + ".crc")
-    with mcap.open("rb") as src, rewritten.open("wb") as dst:
-        writer = McapWriter(dst, compression=CompressionType.ZSTD if compress else CompressionType.NONE)
-        schemas: dict[int, int] = {}
-        channels: dict[int, int] = {}
-        for r in StreamReader(src).records:
-            if isinstance(r, Header):
-                writer.start(profile=r.profile, library=r.library)
-            elif isinstance(r, Schema):
-                schemas[r.id] = writer.register_schema(r.name, r.encoding, r.data)
-            elif isinstance(r, Channel):
-                channels[r.id] = writer.register_channel(r.topic, r.message_encoding, schemas.get(r.schema_id, 0),
-                                                         r.metadata)
-            elif isinstance(r, Message):
-                writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time, r.sequence)
-            elif isinstance(r, Metadata):
-                writer.add_metadata(r.name, r.metadata)
-        writer.finish()
-    rewritten.replace(mcap)
+    import zstandard
+    from mcap.reader import make_reader
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    crc_at = 1 + 8 + 3 * 8   # opcode, record length, start, end, uncompressed size
+    patches = []
+    with mcap.open("rb") as fh:
+        summary = make_reader(fh).get_summary()
+        for index in summary.chunk_indexes if summary is not None else ():
+            fh.seek(index.chunk_start_offset)
+            records = StreamReader(BytesIO(fh.read(index.chunk_length)), skip_magic=True, emit_chunks=True).records
+            chunk = next(iter(records))
+            if isinstance(chunk, Chunk) and chunk.uncompressed_crc == 0:
+                data = (zstandard.decompress(chunk.data, chunk.uncompressed_size)
+                        if chunk.compression == "zstd" else chunk.data)
+                patches.append((index.chunk_start_offset, zlib.crc32(data)))
+    with mcap.open("r+b") as fh:
+        for offset, crc in patches:
+            fh.seek(offset)
+            if fh.read(1) != b"\x06":   # the summary's offset is the record's start
+                raise BagError(f"{mcap}: no chunk record at byte {offset}: cannot set its CRC")
+            fh.seek(offset + crc_at)
+            fh.write(crc.to_bytes(4, "little"))
 
 
 def check_chunks(mcap: Path) -> None:
