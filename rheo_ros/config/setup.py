@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -191,7 +192,9 @@ class Setup:
                               f"{', '.join(f'P{i + 1}' for i in empty)} without a column; "
                               f"each of the {tactile.nodes} segments needs one")
 
-    @property
+    # Built once (the parameters do not change): the node reads the tactile array's
+    # segments for every image, and a new array per message rebuilt them each time.
+    @cached_property
     def mesh(self) -> Mesh:
         p = self.params
         return Mesh.build(p["geometry"], p["specimen.width"], p["specimen.height"], p["specimen.thickness"],
@@ -227,7 +230,7 @@ class Setup:
             _FORWARD_MODELS[key] = QuasiStaticFE(m, refine, edges)
         return _FORWARD_MODELS[key]
 
-    @property
+    @cached_property
     def tactile(self) -> TactileArray:
         p = self.params
         return TactileArray(rows=p["tactile.rows"], cols=p["tactile.cols"], width=p["specimen.width"],

@@ -61,6 +61,7 @@ from rheo_ros.identification.pipeline import (
 from rheo_ros.identification.pooling import Change, Pool, pool_experiments, pool_of
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
+from rheo_ros.models.response import StateSpace
 from rheo_ros.online.segmenter import PhaseEvent, PhaseSegmenter
 from rheo_ros.record import Record, RecordError
 from rheo_ros.sensors import SensorReading
@@ -288,9 +289,11 @@ class PhaseIdentifier:
         self.forward = forward or QuasiStaticFE(mesh)
 
     def prepare(self) -> None:
-        """Build what the first closed form would otherwise wait for (the forward model's
-        implied-force table, ~0.4 s)."""
+        """Build what the first closed form would otherwise wait for: the forward model's
+        implied-force table (~0.4 s) and a model's state space (scipy.signal's import,
+        ~0.7 s, which the package leaves to the processes that solve a model)."""
         self.forward.implied_force(np.zeros(self.mesh.nodes.shape), 0.3)
+        StateSpace.of(three_element(1.0, 1.0, 1.0))
 
     @staticmethod
     def _record(job: Job) -> Record:
