@@ -18,8 +18,8 @@ release there too, whatever the recording holds after.
 The callbacks only convert messages and feed the core (``rheo_ros.online``). The
 identification runs in two lanes, each a worker process, so that nothing waits behind
 a fit and no computation shares the interpreter with message intake: the paper's
-closed forms (tens of milliseconds), and the whole-record fits (up to seconds) where
-the CPU is otherwise idle. A bad message is counted and reported, never fatal; a worker that
+closed forms (tens of milliseconds), and the whole-record fits (up to seconds) at
+lower priority. A bad message is counted and reported, never fatal; a worker that
 dies is replaced.
 """
 
@@ -127,9 +127,9 @@ class EstimatorNode(Node):
                                                         "closed_form compute")}
         self.started = time.monotonic()
         # Lanes: a thread each, handing the work to its worker process and the result back.
-        self.workers = {"closed_form": Worker(self.core.identify)}
-        if self.core.config.fit:   # the fits in the background: the closed forms are the node's latency
-            self.workers["fit"] = Worker(self.core.identify, background=True)
+        self.workers = {"closed_form": Worker(self.core.identify, self.NICENESS["closed_form"])}
+        if self.core.config.fit:
+            self.workers["fit"] = Worker(self.core.identify, self.NICENESS["fit"])
         self.closed_jobs: queue.Queue[tuple[Job, float] | None] = queue.Queue()
         # Fits and diagnoses take seconds: a lane that falls behind keeps FIT_BACKLOG jobs,
         # skipping first a push's earlier fits that its later phase's covers, and counts
@@ -211,6 +211,8 @@ class EstimatorNode(Node):
         self._feed("markers", msg, read_marker_array, self.core.add_markers)
 
     # -- identification lanes ------------------------------------------------------------
+
+    NICENESS = {"closed_form": 0, "fit": 10}
 
     def _in_worker(self, lane: str, method: str, *args):
         try:

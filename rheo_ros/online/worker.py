@@ -23,10 +23,9 @@ class WorkerDied(RuntimeError):
     the next call."""
 
 
-def _serve(conn, target: Any, background: bool) -> None:
+def _serve(conn, target: Any, niceness: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle; it stops us
-    if background:
-        _run_in_background()
+    os.nice(niceness)
     prepare = getattr(target, "prepare", None)
     if prepare is not None:
         prepare()
@@ -47,19 +46,6 @@ def _serve(conn, target: Any, background: bool) -> None:
         conn.send((*reply, time.perf_counter() - start))
 
 
-def _run_in_background() -> None:
-    """Run only on a core nothing else wants (Linux's SCHED_IDLE; elsewhere the lowest
-    nice value): long work that must never take a core from the latency-bound work
-    beside it."""
-    if hasattr(os, "sched_setscheduler") and hasattr(os, "SCHED_IDLE"):
-        try:
-            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-            return
-        except OSError:
-            pass
-    os.nice(19)
-
-
 class Worker:
     """A process holding ``target`` (its ``prepare()`` run once at start, if it has one);
     ``call(method, *args)`` runs ``target.method(*args)`` there and returns the result or
@@ -68,12 +54,11 @@ class Worker:
 
     Args:
         target: a picklable object (sent to the process once).
-        background: the process runs only where the CPU is otherwise idle (long work
-            that must not delay the latency-bound work beside it).
+        niceness: added to the process's nice value (lower priority for long work).
     """
 
-    def __init__(self, target: Any, background: bool = False) -> None:
-        self.target, self.background = target, background
+    def __init__(self, target: Any, niceness: int = 0) -> None:
+        self.target, self.niceness = target, niceness
         # spawn, not fork: a forked copy of a process running DDS threads is unsafe.
         self._context = multiprocessing.get_context("spawn")
         self._closed = False
@@ -82,7 +67,7 @@ class Worker:
 
     def _start(self) -> None:
         self._conn, child = self._context.Pipe()
-        self.process = self._context.Process(target=_serve, args=(child, self.target, self.background), daemon=True)
+        self.process = self._context.Process(target=_serve, args=(child, self.target, self.niceness), daemon=True)
         self.process.start()
         child.close()
         try:   # ready: prepared now, not at the first call
