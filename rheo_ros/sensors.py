@@ -405,6 +405,7 @@ def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[floa
 MAX_DISTINCT = 1 << 16     # more distinct readings than this: no lattice to read (continuous)
 MIN_LATTICE = 50           # distinct readings a quantisation step is read from
 MARKER_RESOLUTION = 1e-9   # m: a marker noise below this is numerical (a noise-free record)
+NOISE_AGREES = 1.5         # a stated noise within this factor of the data's agrees with them
 
 
 def marker_noise(markers: np.ndarray) -> tuple[float, int]:
@@ -413,7 +414,6 @@ def marker_noise(markers: np.ndarray) -> tuple[float, int]:
     it is the coordinates' rounding (float64 positions near a metre show 3e-17 m)."""
     std, count = difference_noise(markers)
     return (0.0 if std < MARKER_RESOLUTION else std), count
-NOISE_AGREES = 1.5         # a stated noise within this factor of the data's agrees with them
 
 
 @dataclass

@@ -31,9 +31,10 @@ def run(repeats: int = 3) -> dict[str, Any]:
             counts = simulate_to_bag(setup, i, Path(tmp) / "bag")
             total.append(time.perf_counter() - t0)
             size = sum(f.stat().st_size for f in (Path(tmp) / "bag").iterdir())
+    refine = setup.params["simulator.refine"]
     return {
         "simulated_s": duration, "mesh": f"{setup.mesh.rows} x {setup.mesh.cols}",
-        "fe_mesh": "{0} x {1}".format(*((n - 1) * setup.params["simulator.refine"] + 1 for n in (setup.mesh.rows, setup.mesh.cols))), "messages": counts,
+        "fe_mesh": f"{(setup.mesh.rows - 1) * refine + 1} x {(setup.mesh.cols - 1) * refine + 1}", "messages": counts,
         "first_s": first, "physics_s": min(physics), "bag_s": min(total), "bag_bytes": size,
         "physics_x_realtime": duration / min(physics), "bag_x_realtime": duration / min(total),
     }

@@ -241,10 +241,10 @@ class DynamicFE:
 
     BLOCK = 64   # steps ``simulate`` propagates at once along a stretch of equal steps
 
-    def _readout(self, contact: Contact) -> np.ndarray:
-        """Rows that read off a state everything a sample keeps and a step checks: each
-        tactile segment's force, the markers' x and y, the top's sinking and the force
-        the stage presses with."""
+    def _readout(self, contact: Contact) -> tuple[np.ndarray, np.ndarray]:
+        """Rows that read off a state what a sample keeps and a step checks: (each tactile
+        segment's force, then the top's sinking (m), then the force (N) the stage presses
+        with; the markers' x and y). Every output of a state is one of these rows."""
         if contact not in self._readouts:
             marker_dofs = self.structure.marker_dofs.ravel()
             markers = np.zeros((marker_dofs.size, self.size))
@@ -253,36 +253,34 @@ class DynamicFE:
             sinking[0, self._top_y] = -1.0 / self._top_y.size
             pressing = -self._mode("held")[1][self._top_y].sum(axis=0, keepdims=True)
             force = self.structure.segments @ self._mode(contact)[1][self._bottom_y]
-            self._readouts[contact] = np.vstack([force, markers, sinking, pressing])
+            self._readouts[contact] = (np.vstack([force, sinking, pressing]), markers)
         return self._readouts[contact]
 
     def _block(self, contact: Contact, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The readouts after each of ``BLOCK`` steps of ``dt`` (R Phi, R Phi^2, ...) split
-        into (force, sinking and pressing rows stacked: BLOCK * (segments + 2) x states;
-        marker rows: BLOCK x markers x states) and the propagator of the whole block
-        Phi^BLOCK: a stretch of equal steps costs one product with the readouts' rows and
+        """The readouts after each of ``BLOCK`` steps of ``dt`` (R Phi, R Phi^2, ...): the
+        force, sinking and pressing rows stacked (BLOCK * (segments + 2) x states), the
+        marker rows (BLOCK x markers x states); and the propagator of the whole block
+        Phi^BLOCK. A stretch of equal steps costs one product with the readouts' rows and
         one with the state's, not ``BLOCK`` with the state's (~60 readouts, ~900 states),
         and the markers' rows only at the steps that sample them."""
         def make() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             phi = self._propagator(contact, dt)
-            rows = [self._readout(contact) @ phi]
+            scalar, markers = self._readout(contact)
+            scalars, marker_rows = [scalar @ phi], [markers @ phi]
             for _ in range(self.BLOCK - 1):
-                rows.append(rows[-1] @ phi)
+                scalars.append(scalars[-1] @ phi)
+                marker_rows.append(marker_rows[-1] @ phi)
             power = phi
             for _ in range(self.BLOCK.bit_length() - 1):   # BLOCK is a power of two
                 power = power @ power
-            stacked = np.stack(rows)
-            n_force, n_markers = self.structure.segments.shape[0], self.structure.marker_dofs.size
-            scalar = np.ascontiguousarray(np.delete(stacked, np.s_[n_force:n_force + n_markers], axis=1))
-            markers = np.ascontiguousarray(stacked[:, n_force:n_force + n_markers])
-            return scalar.reshape(-1, self.size), markers, power
+            return np.vstack(scalars), np.stack(marker_rows), power
         return self._cached(self._blocks, contact, dt, make)
 
     # -- outputs of the current state -----------------------------------------------------
 
     def bottom_force(self) -> np.ndarray:
         """Force on each tactile segment (N, positive pressing)."""
-        return self.structure.segments @ (self._mode(self.contact)[1][self._bottom_y] @ self.z)
+        return self._readout(self.contact)[0][:-2] @ self.z
 
     def displacement(self) -> np.ndarray:
         """Marker displacements (N, 2) in m."""
@@ -290,11 +288,11 @@ class DynamicFE:
 
     def strain(self) -> float:
         """Nominal compressive strain: mean sinking of the top nodes / height."""
-        return float(-self.z[self._top_y].sum() / (self._top_y.size * self.mesh.height))
+        return self._sinking(self.z) / self.mesh.height
 
     def _pressing(self, z: np.ndarray) -> float:
         """Force (N) the stage exerts down on the specimen in contact; < 0 means pulling."""
-        return float(-self._mode("held")[1][self._top_y].sum(axis=0) @ z)
+        return float(self._readout("held")[0][-1] @ z)
 
     # -- stepping ----------------------------------------------------------------------
 
@@ -360,8 +358,8 @@ class DynamicFE:
         return self._last_before("held", dt, lambda z, _: self._pressing(z) > 0.0)
 
     def _sinking(self, z: np.ndarray) -> float:
-        """How far (m) the top has sunk in state ``z``."""
-        return float(-z[self._top_y].mean())
+        """How far (m) the top has sunk in state ``z`` (its nodes' mean)."""
+        return float(self._readout("held")[0][-2] @ z)
 
     def _contact(self, dt: float, d0: float, depth: float) -> tuple[int, np.ndarray]:
         """Instant within a free step at which the stage, going linearly from ``d0`` to
@@ -414,9 +412,8 @@ class DynamicFE:
         slot[np.searchsorted(grid, t)] = np.arange(t.size)
         wanted = np.zeros(grid.size, bool)
         wanted[slot >= 0] = True if markers_at is None else np.asarray(markers_at, bool)
-        n_force, n_markers = self.structure.segments.shape[0], self.structure.marker_dofs.size
-        scalars = np.zeros((t.size, n_force + 2))   # segment forces, sinking, pressing
-        markers = np.full((t.size, n_markers), np.nan)
+        scalars = np.zeros((t.size, self.structure.segments.shape[0] + 2))   # as ``_readout``'s rows
+        markers = np.full((t.size, self.structure.marker_dofs.size), np.nan)
         held = np.zeros(t.size, bool)
         # An instant release: the step onto its time arrives at the push's depth, then leaves.
         jumps = {p.t_keep_end: p.depth for p in profile.pushes if not np.isfinite(p.retract_speed)}
@@ -432,13 +429,13 @@ class DynamicFE:
                 self.advance(grid[i], jumps[grid[i]])
             self.advance(grid[i], float(depths[i]))
             if slot[i] >= 0:
-                read = self._readout(self.contact) @ self.z
-                scalars[slot[i]], held[slot[i]] = np.delete(read, np.s_[n_force:n_force + n_markers]), self.contact == "held"
+                scalar_rows, marker_rows = self._readout(self.contact)
+                scalars[slot[i]], held[slot[i]] = scalar_rows @ self.z, self.contact == "held"
                 if wanted[i]:
-                    markers[slot[i]] = read[n_force:n_force + n_markers]
+                    markers[slot[i]] = marker_rows @ self.z
             i += 1
-        strain = scalars[:, n_force] / self.mesh.height
-        return FEResult(t, profile.depth_at(t), markers.reshape(t.size, -1, 2), scalars[:, :n_force], held, strain)
+        strain = scalars[:, -2] / self.mesh.height
+        return FEResult(t, profile.depth_at(t), markers.reshape(t.size, -1, 2), scalars[:, :-2], held, strain)
 
     def _steady_steps(self, grid: np.ndarray, depths: np.ndarray, jump: np.ndarray) -> np.ndarray:
         """For each step (onto ``grid[i]``), how many steps from it on share its length and

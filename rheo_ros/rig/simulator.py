@@ -209,7 +209,9 @@ def simulate_clean(setup: Setup) -> CleanRun:
     ti, mi = np.searchsorted(t, tactile_t), np.searchsorted(t, marker_t)
     # An effect with memory sees the markers at every step, as the streaming one does;
     # otherwise the FE reads them only where the camera does (most of its readouts).
-    markers_at = None if model.memory else np.isin(np.arange(t.size), mi)
+    markers_at = None if model.memory else np.zeros(t.size, bool)
+    if markers_at is not None:
+        markers_at[mi] = True
     res = fe.simulate(profile, t, markers_at)
     felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)
     seen = (model.measured_markers(t, res.displacement)[mi] if model.memory
