@@ -295,6 +295,32 @@ def test_a_trial_that_needs_too_many_steps_fails_instead_of_filling_the_memory(m
     assert 0 < first_nan and np.isfinite(short[:first_nan]).all() and np.isnan(short[first_nan:]).all()
 
 
+
+def test_a_trial_whose_solver_steps_stall_fails_instead_of_raising(monkeypatch):
+    """LSODA can take steps of zero length on a stiff trial; scipy's dense output then
+    refuses its own time stamps ("`ts` must be strictly increasing": the out-of-catalogue
+    bench's generator bag 19 of seed 12 ended "refused" on a trial form). Such a segment is
+    a failed trial, NaN from its start, as one out of steps; the segments before it stand."""
+    import rheo_ros.models.response as response
+
+    base = three_element(3.5e4, 1.5e5, 2.3e7)
+    program = Program.push_hold_release(0.008, 20.0, 48.0, t0=1.0)
+    t = np.linspace(0.0, 100.0, 2001)
+    law = lambda eps: np.expm1(4.0 * eps) / 4.0   # noqa: E731
+    calls = []
+
+    def stalls_on_the_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise ValueError("`ts` must be strictly increasing or decreasing.")
+        return solve_ivp(*args, **kwargs)
+
+    from scipy.integrate import solve_ivp
+    monkeypatch.setattr(response, "solve_ivp", stalls_on_the_second)
+    stress = respond_voigt_spring(base, law, 0.08, program, t).stress
+    first_nan = int(np.argmin(np.isfinite(stress)))
+    assert 0 < first_nan and np.isfinite(stress[:first_nan]).all() and np.isnan(stress[first_nan:]).all()
+
 # -- many pushes on one specimen (issue 25) ------------------------------------------------
 
 

@@ -134,21 +134,26 @@ def assess(record: Record, forward: QuasiStaticFE, model: Model, est: Estimate, 
     return ModelFit(model, est, comparison, stats.cost, stats.readings, rmse, by_phase, p.force.sum(axis=1))
 
 
-def _context(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorNoise) -> FitContext:
+def _context(record: Record, forward: QuasiStaticFE, fit: ModelFit, noise: SensorNoise,
+             model: Model | None = None) -> FitContext:
+    """What an effect's starts read (``Effect.starts``): ``fit``'s values and the residual
+    of ``model`` at them (default: ``fit``'s own model)."""
     tactile, marker = fit.delays
-    p = forward.predict(fit.model, fit.estimate.params["gamma"], record.profile(), record.force_t - tactile,
-                        record.marker_t - marker)
+    p = forward.predict(model or fit.model, fit.estimate.params["gamma"], record.profile(),
+                        record.force_t - tactile, record.marker_t - marker)
     cells = None if record.sensor is None else record.sensor.tactile.cells_per_segment
     return FitContext(record.profile(), fit.estimate.params, float(np.max(record.force)), record.force_t,
                       record.force - p.force, noise.force_live, cells)
 
 
 def _start_cost(record: Record, forward: QuasiStaticFE, current: ModelFit, effect: Effect,
-                noise: SensorNoise) -> float:
+                noise: SensorNoise, others: Sequence[Effect] | None = None) -> float:
     """The chi-square of ``current`` + ``effect`` as given (no fit); inf if it cannot be
     evaluated. Weighted as ``current``'s fit was: the sensor noise, or on a noise-free
-    record (no noise to weight by) the residuals' own levels."""
-    model = Model(three_element(1.0, 1.0, 1.0), (*current.model.effects, effect))
+    record (no noise to weight by) the residuals' own levels. ``others``: the effects
+    beside it (default: ``current``'s)."""
+    others = current.model.effects if others is None else others
+    model = Model(three_element(1.0, 1.0, 1.0), (*others, effect))
     stats = current.estimate.statistics
     weights = Weights(stats.force_weights, stats.weights["markers"])
     return chi_square(record, forward, model, {**current.estimate.params, **effect.parameters}, current.delays,
@@ -208,6 +213,24 @@ def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
         again = fit_model(record, forward, effects, {**current.estimate.params, **restart}, noise)
         fit = min((fit, again), key=lambda f: f.cost)
     return fit
+
+
+def other_form(record: Record, forward: QuasiStaticFE, fit: ModelFit, index: int, form: type[Effect],
+               noise: SensorNoise, base: ModelFit) -> ModelFit:
+    """``fit`` with its ``index``-th effect in another ``form`` of its family (the others
+    kept), fitted from ``fit``'s values and the form's best start (``Effect.starts`` on
+    the residual without that effect). A base parameter ``fit`` lost to a bound and
+    ``base`` (the three-element fit) determined starts from ``base``'s value: a fit
+    started at a bound stays there."""
+    effects = fit.model.effects
+    others = effects[:index] + effects[index + 1:]
+    context = _context(record, forward, fit, noise, replace(fit.model, effects=others))
+    start = min(form.starts(context), key=lambda e: _start_cost(record, forward, fit, e, noise, others))
+    params = {k: v for k, v in fit.estimate.params.items() if k in ("E", "c1", "c2", "gamma")}
+    params.update({k: base.estimate.params[k] for k in params
+                   if not np.isfinite(fit.estimate.std.get(k, np.inf)) and np.isfinite(base.estimate.std.get(k, np.inf))})
+    swapped = effects[:index] + (start,) + effects[index + 1:]
+    return fit_model(record, forward, swapped, params, noise)
 
 
 def lost_base_start(record: Record, forward: QuasiStaticFE, current: ModelFit) -> dict[str, float]:

@@ -512,8 +512,14 @@ def _covariance(sol, pmap: ParameterMap, chi2: float) -> tuple[np.ndarray, np.nd
     loose = pmap.at_edge(sol.x) | (column <= 1e-12 * max(column.max(), 1e-300))
     bounded = ~loose
     cov_x = np.zeros((len(pmap.names), len(pmap.names)))
-    cov_x[np.ix_(bounded, bounded)] = np.linalg.pinv(sol.jac[:, bounded].T @ sol.jac[:, bounded]) * chi2
-    return cov_x, loose
+    inverse = np.linalg.pinv(sol.jac[:, bounded].T @ sol.jac[:, bounded])
+    # J^T J numerically singular: pinv leaves a variance of zero or below zero (its rounding)
+    # where a direction was cut, which is no measurement but an undetermined parameter.
+    degenerate = np.zeros_like(loose)
+    degenerate[bounded] = ~(np.diag(inverse) > 0.0)
+    cov_x[np.ix_(bounded, bounded)] = inverse * chi2
+    cov_x[degenerate, :] = cov_x[:, degenerate] = 0.0
+    return cov_x, loose | degenerate
 
 
 def _held_by_bounds(residuals, x: np.ndarray, i: int, cost: float) -> tuple[float, float] | None:

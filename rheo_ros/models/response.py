@@ -398,8 +398,11 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
-            sol = solve_ivp(rhs, span, y0, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
-                            args=(rate,), dense_output=True, events=[budget, *([events] if events else [])])
+            try:
+                sol = solve_ivp(rhs, span, y0, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                                args=(rate,), dense_output=True, events=[budget, *([events] if events else [])])
+            except ValueError:   # steps of zero length (a stiff trial): no dense output, a failed trial
+                return None
         if not sol.success or sol.t_events[0].size or not np.all(np.isfinite(sol.y[:, -1])):
             return None   # failed, or out of steps: a trial the fit rejects, never the machine's memory
         sol.t_events, sol.y_events = sol.t_events[1:], sol.y_events[1:]   # the caller's events as it gave them
