@@ -274,10 +274,13 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
         if verdict.missing_effect is None or len(models) > limit:
             return models, verdicts
         winner = next(c for c in verdict.candidates if c.effect == verdict.missing_effect)
-        if progress:
-            progress(f"refining {winner.fit.name}" + (f" ({len(winner.alternatives) + 1} forms)"
-                                                      if winner.alternatives else ""))
-        models.append(refine_forms(record, forward, winner, noise))
+        if revisited is not None:   # forms_again refined it and chose its forms: not again
+            models.append(winner.fit)
+        else:
+            if progress:
+                progress(f"refining {winner.fit.name}" + (f" ({len(winner.alternatives) + 1} forms)"
+                                                          if winner.alternatives else ""))
+            models.append(refine_forms(record, forward, winner, noise))
         changes = revisited or []
         if revisited is None and (len(models[-1].model.effects) > 1
                                   or collapsed(models[-1], base, sample_interval(record))):
