@@ -353,9 +353,23 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
             {"effect": "adhesion", "form": "f", "delta_bic": None, "rmse_after": None, "explained": None,
              "eligible": False, "misfit_delta_bic": None, "clears": []},
         ],
-        "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [],
+        "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [], "dropped": [],
     }
     assert Diagnosis("m", True, None, (), "fine").undecided == ()
+
+
+def test_an_effect_taken_out_again_is_not_among_the_missing_effects():
+    """``Diagnosis.dropped`` (``discover.drop_idle``): an effect found first and taken out
+    once a later one was added is not named; one taken out and found again is, where it
+    was found last."""
+    steps = [Diagnosis("three_element", False, "strain_stiffening", (), "first"),
+             Diagnosis("three_element+strain_stiffening", False, "sensor_drift", (), "second",
+                       dropped=("strain_stiffening",)),
+             Diagnosis("three_element+sensor_drift", True, None, (), "adequate")]
+    assert Verdict.of(steps).missing_effects == ("sensor_drift",)
+    again = [*steps[:2], Diagnosis("three_element+sensor_drift", False, "strain_stiffening", (), "third"),
+             Diagnosis("three_element+sensor_drift+strain_stiffening", True, None, (), "adequate")]
+    assert Verdict.of(again).missing_effects == ("sensor_drift", "strain_stiffening")
 
 
 def test_verdict_of_no_diagnosis_says_not_diagnosed():

@@ -161,6 +161,8 @@ class Diagnosis:
             (``collapsed``; set by ``discover`` on its last diagnosis).
         leftover: the signals and phases the judged model, with effects added, still
             misfits (``leftover``; set by ``discover`` on its last diagnosis).
+        dropped: effects found earlier and taken out once ``missing_effect`` was added:
+            they no longer earned their parameters beside it (``discover.drop_idle``).
     """
 
     model: str
@@ -171,6 +173,7 @@ class Diagnosis:
     undecided: tuple[str, ...] = ()
     degenerate: tuple[str, ...] = ()
     leftover: tuple[str, ...] = ()
+    dropped: tuple[str, ...] = ()
 
     def to_json(self) -> dict:
         return {
@@ -180,7 +183,7 @@ class Diagnosis:
                             "misfit_delta_bic": _finite(c.misfit_delta_bic), "clears": list(c.clears)}
                            for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
-            "leftover": list(self.leftover),
+            "leftover": list(self.leftover), "dropped": list(self.dropped),
         }
 
 
@@ -193,7 +196,8 @@ class Verdict:
         adequate: the last model fits within the noise and no effect earns its
             parameters (None: not diagnosed).
         missing_effects: the effects found missing, in the order found: those the loop
-            added, when they explain the data (``explained``); else none.
+            added and kept (``Diagnosis.dropped``), when they explain the data
+            (``explained``); else none.
         undecided: the effects the data cannot tell apart on the last model.
         candidates: every effect tried on the base model, best BIC first.
         evidence: the paragraphs of every step, in order, and the final word.
@@ -220,7 +224,11 @@ class Verdict:
         if not diagnoses:
             return cls(None, (), (), (), "not diagnosed")
         last = diagnoses[-1]
-        added = tuple(d.missing_effect for d in diagnoses if d.missing_effect)
+        found: list[str] = []   # in the order found, less those taken out again (``Diagnosis.dropped``)
+        for d in diagnoses:
+            found += [d.missing_effect] if d.missing_effect else []
+            found = [e for e in found if e not in d.dropped]
+        added = tuple(found)
         explained = bool(last.adequate) and not last.degenerate and not last.leftover
         evidence = " ".join(d.evidence for d in diagnoses)
         if added and not explained:
