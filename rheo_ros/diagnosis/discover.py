@@ -122,6 +122,12 @@ def refine_forms(record: Record, forward: QuasiStaticFE, winner: Candidate, nois
     return best
 
 
+def _flawed(fit: ModelFit, base: ModelFit, interval: float) -> bool:
+    """``fit`` is no answer as it stands: a base parameter lost to a bound (``collapsed``),
+    a misfit, or a phase left misfitting (``leftover``)."""
+    return bool(collapsed(fit, base, interval) or fit.misfits or leftover(fit))
+
+
 def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: ModelFit, noise: SensorNoise,
                   progress: Progress | None = None) -> tuple[ModelFit, list[str]]:
     """``fit`` (the base with effects, the last just added) with each effect's form chosen
@@ -143,7 +149,7 @@ def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: M
         return collapsed(f, base, interval)
 
     def flawed(f: ModelFit) -> bool:
-        return bool(lost(f) or f.misfits or leftover(f))
+        return _flawed(f, base, interval)
 
     changes: list[str] = []
     effects = fit.model.effects
@@ -190,10 +196,6 @@ def drop_idle(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: Model
     far ahead); with the drift found next the stiffening's coefficient fell to zero, and both
     were named. Returns the model, the effects taken out, and why, in words."""
     interval = sample_interval(record)
-
-    def flawed(f: ModelFit) -> bool:
-        return bool(collapsed(f, base, interval) or f.misfits or leftover(f))
-
     dropped: list[str] = []
     words: list[str] = []
     for effect_id in [e.id for e in fit.model.effects[:-1]]:
@@ -202,7 +204,7 @@ def drop_idle(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: Model
             progress(f"{fit.name}: without {effect_id}")
         start = {k: fit.estimate.params[k] for k in BASE_PARAMETERS}
         trial = polish(record, forward, fit_model(record, forward, rest, start, noise), noise)
-        if trial.bic >= fit.bic + BIC_DECISIVE or (flawed(trial) and not flawed(fit)):
+        if trial.bic >= fit.bic + BIC_DECISIVE or (_flawed(trial, base, interval) and not _flawed(fit, base, interval)):
             continue
         change = trial.bic - fit.bic
         words.append(f"{effect_id} no longer earns its parameters beside "
