@@ -24,6 +24,7 @@ from rheo_ros.diagnosis.decision import (
     leftover,
     phase_excess,
     sample_interval,
+    undetermined,
 )
 from rheo_ros.diagnosis.evidence import evidence_text
 from rheo_ros.diagnosis.fits import (
@@ -60,9 +61,12 @@ REVISIT_PASSES = 2
 
 def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
                noise: SensorNoise, form: str | None = None) -> Candidate:
-    """Fit ``current`` + the effect in ``form`` (default: the family's default) and judge it."""
+    """Fit ``current`` + the effect in ``form`` (default: the family's default) and judge it;
+    its second start is fitted only where the first fit is no answer (``_sound``)."""
+    interval = sample_interval(record)
     try:
-        best = add_effect(record, forward, current, effect_id, noise, form)
+        best = add_effect(record, forward, current, effect_id, noise, form,
+                          sound=lambda fit: _sound(fit, effect_id, current, interval))
     except Exception as exc:  # a user's effect may fail in any way: it loses, the diagnosis goes on
         return Candidate(effect_id, None, np.inf, np.nan, 0.0, 0.0, 0.0, False, False,
                          note=f"the fit failed: {type(exc).__name__}: {exc}",
@@ -128,6 +132,15 @@ def _flawed(fit: ModelFit, base: ModelFit, interval: float) -> bool:
     return bool(collapsed(fit, base, interval) or fit.misfits or leftover(fit))
 
 
+def _sound(fit: ModelFit, effect_id: str, base: ModelFit, interval: float) -> bool:
+    """``fit`` (with ``effect_id``) is an answer as it stands: not ``_flawed`` against
+    ``base``, and the data pin the effect's parameters down (``undetermined``). A fit
+    from another start is not tried beside it (``fits.fit_from``): generator seed 17 bag 1
+    (each segment settling, 1.7 x the total-force noise) fits within the noise from the
+    first start with the drift's time unbounded, and from the second with it bounded."""
+    return not _flawed(fit, base, interval) and not undetermined(fit, effect_id)
+
+
 def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: ModelFit, noise: SensorNoise,
                   progress: Progress | None = None) -> tuple[ModelFit, list[str]]:
     """``fit`` (the base with effects, the last just added) with each effect's form chosen
@@ -163,7 +176,8 @@ def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: M
             continue
         if progress:
             progress(f"{fit.name}: {effect_id} in its {', '.join(c.form for c in others)} form(s)")
-        trials = [other_form(record, forward, fit, index, cls, noise, base) for cls in others]
+        trials = [other_form(record, forward, fit, index, cls, noise, base,
+                             sound=lambda f: _sound(f, effect_id, base, interval)) for cls in others]
         trial = min(trials, key=lambda f: (bool(lost(f)), f.bic))
         if not lost(fit) and trial.bic >= fit.bic + max(BIC_DECISIVE, FORM_WINDOW * abs(fit.bic - base.bic)):
             continue   # a screening fit this far behind does not overtake once refined
