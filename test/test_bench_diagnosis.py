@@ -21,7 +21,7 @@ def _check_row(row):
     assert row["seconds"] > 0 and row["make_seconds"] > 0
     for h in [row, *row["hidden"]]:
         assert np.isfinite(h["size"]) and 0 <= h["size_live"] <= h["size"] * 1.5 + 1e-12
-    assert np.isfinite(row["force_rms_to_noise"]) and row["force_rms_to_noise"] > 0
+    assert np.isfinite(row["force_rms_to_noise"]) and row["force_rms_to_noise"] > 0 and row["force_rms_readings"] > 0
 
 
 def test_a_quick_simulator_bag_with_a_relaxation_branch_is_named_with_its_form(tmp_path):
@@ -158,6 +158,11 @@ def test_the_score_counts_false_claims_forms_and_bags_above_the_thresholds():
     s = diagnosis.score(rows, 0.95)
     assert s["clean_bags"] == 3 and s["false_claims_on_clean"] == 1 and s["undecided_on_clean"] == 1
     assert s["clean_fit_within"] == 2 and s["clean_fit_max"] == 1.4
+    # Over 11 readings a ratio of 1.19 is within two sampling stds of 1 (1 + 2 / sqrt(22) = 1.43);
+    # over 1000 it is not (1.1 stands).
+    assert diagnosis.fit_limit(11) == pytest.approx(1.4264, abs=1e-4) and diagnosis.fit_limit(1000) == 1.1
+    few = [{**_row([]), "force_rms_to_noise": 1.19, "force_rms_readings": n} for n in (11, 1000)]
+    assert diagnosis.score(few, 0.95)["clean_fit_within"] == 1
     assert [s["by_hidden"][n]["bags"] for n in (0, 1, 2)] == [4, 3, 2] and s["failed"] == 1 and s["refused"] == 1
     assert s["by_hidden"][0]["outcomes"]["refused"] == 1
     assert s["thresholds"]["adhesion"]["threshold"] == 5.0

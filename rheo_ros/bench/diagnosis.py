@@ -69,7 +69,10 @@ the final model fits: the RMS of its total-force residual over the readings wher
 segment is live, pooled over the phases, over the total force's noise as the data show
 it (``force_rms_to_noise``, from the analysis's comparison, signal ``total``). Readings
 in the dead band are left out of it: there a model reads zero like the sensor and would
-make the ratio look better than the fit is.
+make the ratio look better than the fit is. A clean bag fits within the noise when the
+ratio is at most ``FIT_LIMIT``, or, over readings too few for that, within
+``FIT_SAMPLING_SIGMAS`` of its sampling std of 1 (``fit_limit``; the row keeps the count,
+``force_rms_readings``).
 
 **Out of the catalogue** (``--outside``, issue 24): a bag hiding an effect no catalogue
 holds is ``unexplained`` when nothing is named and the verdict says the catalogue does
@@ -117,6 +120,10 @@ WRONG_LIMIT = 0.02              # wrong names on out-of-catalogue bags at most t
 # Exact-set accuracy wanted above the threshold: at the default noise, and at twice it.
 TARGETS = {1.0: 0.95, 2.0: 0.90}
 FIT_LIMIT = 1.1                 # a clean bag's final force RMS within this x the noise
+# ... or within this many of its own sampling stds of 1 (the RMS of n white readings over
+# their std: std 1/sqrt(2n)): a clipped sensor's clean bag (generator seed 17 bag 24) has
+# 11 readings where every segment is live, and there the truth itself reads 1.19 one time in five.
+FIT_SAMPLING_SIGMAS = 2.0
 # Uniform ranges (s) of the keep and of the release: full runs, and quick ones for tests.
 KEEP, RELEASE = (15.0, 40.0), (20.0, 40.0)
 QUICK_KEEP, QUICK_RELEASE = (15.0, 18.0), (20.0, 24.0)
@@ -295,14 +302,24 @@ def check_truth(truth: dict[str, Any], index: int) -> dict[str, Any]:
     return truth
 
 
-def force_rms_to_noise(fit: Any) -> float:
+def force_rms_to_noise(fit: Any) -> tuple[float, int]:
     """The fit's total-force residual RMS over the total force's noise, pooled over the
-    phases (the comparison's ``total`` signal: readings where every segment is live)."""
+    phases (the comparison's ``total`` signal: readings where every segment is live), and
+    the readings it is taken over."""
     stats = [s for s in fit.comparison.stats if s.signal == "total" and s.samples and s.noise > 0]
     if not stats:
-        return float("nan")
+        return float("nan"), 0
     n = np.array([s.samples for s in stats], float)
-    return float(np.sqrt(np.sum(n * np.array([s.rms for s in stats]) ** 2) / n.sum()) / stats[0].noise)
+    return float(np.sqrt(np.sum(n * np.array([s.rms for s in stats]) ** 2) / n.sum()) / stats[0].noise), int(n.sum())
+
+
+def fit_limit(readings: int | None) -> float:
+    """The largest clean-bag ``force_rms_to_noise`` over ``readings`` that counts as a fit
+    within the noise: ``FIT_LIMIT``, or ``FIT_SAMPLING_SIGMAS`` sampling stds above 1 where
+    the readings are too few for that (None: a row that did not count them)."""
+    if not readings:
+        return FIT_LIMIT
+    return max(FIT_LIMIT, 1.0 + FIT_SAMPLING_SIGMAS / np.sqrt(2.0 * readings))
 
 
 def outside_outcome(named: Iterable[str], explained: bool | None, undecided: bool = False,
@@ -344,6 +361,7 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
     row: dict[str, Any] = {
         "index": index, "hidden": None, "outside": [], "size": 0.0, "size_live": 0.0, "info": {}, "named": [],
         "forms": {}, "undecided": [], "explained": None, "outcome": "failed", "force_rms_to_noise": None,
+        "force_rms_readings": 0,
         "evidence": "", "make_seconds": 0.0, "seconds": 0.0, "message": "",
     }
     scratch = directory / f"bag{index:04d}"
@@ -363,8 +381,10 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
             row["seconds"] = time.perf_counter() - t0
         undecided = list(analysis.diagnoses[-1].undecided) if analysis.diagnoses else []
         explained = Verdict.of(analysis.diagnoses).explained if analysis.diagnoses else None
+        ratio, readings = force_rms_to_noise(analysis.final)
         row |= {"named": list(analysis.missing_effects), "forms": dict(analysis.final.forms),
-                "undecided": undecided, "explained": explained, "force_rms_to_noise": force_rms_to_noise(analysis.final),
+                "undecided": undecided, "explained": explained, "force_rms_to_noise": ratio,
+                "force_rms_readings": readings,
                 "evidence": " ".join(d.evidence for d in analysis.diagnoses),
                 "outcome": outside_outcome(analysis.missing_effects, explained, bool(undecided)) if row["outside"]
                 else outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided),
@@ -466,8 +486,8 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     below = [r for r in effect_rows if not above_thresholds(r, families)]
     weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
     forms = form_scores(rows)
-    fits = [r["force_rms_to_noise"] for r in clean if r["force_rms_to_noise"] is not None
-            and np.isfinite(r["force_rms_to_noise"])]
+    fitted = [r for r in clean if r["force_rms_to_noise"] is not None and np.isfinite(r["force_rms_to_noise"])]
+    fits = [r["force_rms_to_noise"] for r in fitted]
     return {
         "target": target,
         "by_hidden": {n: _accuracy([r for r in rows if len(r["hidden"]) == n]) for n in (0, 1, 2)},
@@ -486,7 +506,9 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "unexplained_on_clean": sum(r["outcome"] == "unexplained" for r in clean),
         "clean_fit_median": float(np.median(fits)) if fits else None,
         "clean_fit_max": float(np.max(fits)) if fits else None,
-        "clean_fit_within": sum(f <= FIT_LIMIT for f in fits),
+        "clean_fit_within": sum(r["force_rms_to_noise"] <= fit_limit(r.get("force_rms_readings")) for r in fitted),
+        "clean_fit_max_readings": (max(fitted, key=lambda r: r["force_rms_to_noise"]).get("force_rms_readings")
+                                   if fitted else None),
         "failed": failed,
         "refused": refused,
         "outside": {"bags": len(outside),
@@ -680,8 +702,9 @@ def format_table(result: dict[str, Any]) -> str:
     lines.append(f"clean bags: false claims {result['false_claims_on_clean']}/{result['clean_bags']}, undecided "
                  f"{result['undecided_on_clean']}, unexplained {result.get('unexplained_on_clean', 0)}; final force RMS / noise (live readings) "
                  + ("-" if result["clean_fit_median"] is None else
-                    f"median {result['clean_fit_median']:.3f}, max {result['clean_fit_max']:.3f}, "
-                    f"{result['clean_fit_within']} within {FIT_LIMIT}"))
+                    f"median {result['clean_fit_median']:.3f}, max {result['clean_fit_max']:.3f} (over "
+                    f"{result.get('clean_fit_max_readings') or '?'} readings), {result['clean_fit_within']} within "
+                    f"{FIT_LIMIT} or {FIT_SAMPLING_SIGMAS:g} sampling std of 1"))
     lines.append(f"bags refused with a one-line error: {result.get('refused', 0)}; failed bags: {result['failed']}")
     if result["seconds_median"] is not None:
         lines.append(f"time per bag: analysis median {result['seconds_median']:.1f} s, max {result['seconds_max']:.1f} s; "
