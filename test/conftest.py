@@ -28,24 +28,6 @@ BAGS = REPO / "bags"
 # The simulated clay of the reference bags (the paper's Table IV).
 TRUTH = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.332}
 
-# The files that take longest, heaviest first, in seconds of test time (setup, call and
-# teardown summed from `--durations=0` of a fresh-clone CI run at stop 53, 2 workers): the
-# suite runs them first (``pytest_collection_modifyitems``) and the many short files fill
-# in at the end. Left to xdist's order (by number of tests), the online-nodes file (200 s)
-# started last and held one worker 100 s after the other had run out of files.
-HEAVY_FILES = {"test_effect_families.py": 295, "test_discovery.py": 218, "test_online_nodes.py": 202,
-               "test_pipeline.py": 178, "test_unexplained.py": 163, "test_many_pushes.py": 118,
-               "test_bags.py": 85, "test_bench_diagnosis.py": 76, "test_online.py": 54, "test_analyze_cli.py": 51,
-               "test_package.py": 45, "test_batch.py": 45, "test_nodes.py": 41}
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The heaviest files first (``HEAVY_FILES``), the rest in their own order: with
-    ``--dist loadfile`` and xdist's own reordering off (./tasks test), a worker that runs
-    out of files never waits on one that started a long one last."""
-    items.sort(key=lambda item: -HEAVY_FILES.get(item.path.name, 0))
-
-
 # Fast DDS maps a domain to ports: 0-232 are valid. Tests take theirs below 100, clear of
 # the demo's 100-199 and the online bench's 180-219.
 DOMAINS = range(1, 100)
