@@ -15,6 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
+from conftest import BAGS
 from generator import EFFECTS, Effects, Layout, Material, Profile, generate, synthesize
 
 from rheo_ros.app.analyze import analyze
@@ -452,3 +453,21 @@ def test_a_first_fit_that_leaves_its_effect_unbounded_is_fitted_again_from_the_s
     model = report["models"][-1]
     assert math.isfinite(model["std"]["sensor_drift.amplitude"]), model["std"]
     assert report["models"][0]["bic"] - model["bic"] > 10.0
+
+
+def test_an_idle_effect_on_data_the_model_fits_is_fitted_from_one_start_only(monkeypatch):
+    """``discover._sound``: the package's clean bag (simulator, no effect) fits within the
+    noise; a relaxation arm added to it lowers no BIC and the data cannot pin it down. That
+    first fit is an answer (the effect is idle): the second start, a whole fit that could
+    earn nothing, is not fitted."""
+    from rheo_ros.diagnosis import discover, fits
+
+    analysis = analyze(BAGS / "clean_long_keep", discover_effects=False, workers=1)
+    record, forward, noise, base = analysis.record, analysis.forward, analysis.noise, analysis.models[0]
+    starts = []
+    fit_model = fits.fit_model
+    monkeypatch.setattr(fits, "fit_model", lambda *a, **k: starts.append(a[3]) or fit_model(*a, **k))
+    candidate = discover.try_effect(record, forward, base, "relaxation_branch", noise)
+    assert candidate.fit.bic >= base.bic
+    assert discover.undetermined(candidate.fit, "relaxation_branch")
+    assert len(starts) == 1

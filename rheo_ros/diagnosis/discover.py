@@ -66,7 +66,7 @@ def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
     interval = sample_interval(record)
     try:
         best = add_effect(record, forward, current, effect_id, noise, form,
-                          sound=lambda fit: _sound(fit, effect_id, current, interval))
+                          sound=lambda fit: _sound(fit, effect_id, current, interval, current))
     except Exception as exc:  # a user's effect may fail in any way: it loses, the diagnosis goes on
         return Candidate(effect_id, None, np.inf, np.nan, 0.0, 0.0, 0.0, False, False,
                          note=f"the fit failed: {type(exc).__name__}: {exc}",
@@ -132,13 +132,20 @@ def _flawed(fit: ModelFit, base: ModelFit, interval: float) -> bool:
     return bool(collapsed(fit, base, interval) or fit.misfits or leftover(fit))
 
 
-def _sound(fit: ModelFit, effect_id: str, base: ModelFit, interval: float) -> bool:
+def _sound(fit: ModelFit, effect_id: str, base: ModelFit, interval: float,
+           without: ModelFit | None = None) -> bool:
     """``fit`` (with ``effect_id``) is an answer as it stands: not ``_flawed`` against
-    ``base``, and the data pin the effect's parameters down (``undetermined``). A fit
-    from another start is not tried beside it (``fits.fit_from``): generator seed 17 bag 1
-    (each segment settling, 1.7 x the total-force noise) fits within the noise from the
-    first start with the drift's time unbounded, and from the second with it bounded."""
-    return not _flawed(fit, base, interval) and not undetermined(fit, effect_id)
+    ``base``, and either the data pin the effect's parameters down (``undetermined``) or
+    the effect is idle: the fit's BIC is no lower than ``without``'s (the model it was
+    added to). A fit from another start is not tried beside it (``fits.fit_from``):
+    generator seed 17 bag 1 (each segment settling, 1.7 x the total-force noise) fits
+    within the noise from the first start with the drift's time unbounded (BIC lower by
+    18), and from the second with it bounded. An idle effect on data that fit within the
+    noise is undetermined by nature; a second start for it is a whole fit that earns
+    nothing."""
+    if _flawed(fit, base, interval):
+        return False
+    return not undetermined(fit, effect_id) or (without is not None and fit.bic >= without.bic)
 
 
 def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: ModelFit, noise: SensorNoise,
