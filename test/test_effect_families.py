@@ -471,3 +471,26 @@ def test_an_idle_effect_on_data_the_model_fits_is_fitted_from_one_start_only(mon
     assert candidate.fit.bic >= base.bic
     assert discover.undetermined(candidate.fit, "relaxation_branch")
     assert len(starts) == 1
+
+
+def test_behind_a_small_leader_every_family_misfitting_where_it_shows_has_its_forms_fitted():
+    """``discover.other_forms``: a family's other forms are skipped only behind a leader
+    that lowers the BIC by more than ``FORM_LEADER``. Generator seed 17 bag 14 (a held
+    adhesion found, each cell's baseline settling over 11 s left, 4 x the total-force
+    noise): a linear stiffening led by 59 and the drift's linear form was 13.5 behind the
+    model without it; its settling form, skipped as far behind, was 163 ahead (measured)."""
+    from types import SimpleNamespace
+
+    from rheo_ros.diagnosis import discover
+
+    # Every phase 10 sd over the noise, in bins: each form's phases misfit.
+    current = SimpleNamespace(phase_chi2=lambda phases, signals=("force",): (200.0 * len(phases), 100.0 * len(phases)))
+
+    def default(effect, delta_bic):
+        return SimpleNamespace(effect=effect, delta_bic=delta_bic, clears=())
+
+    small = discover.other_forms(current, [default("strain_stiffening", -59.1), default("sensor_drift", 13.5)])
+    assert {form for effect, form in small if effect == "sensor_drift"} == {"settling", "per_segment",
+                                                                            "settling_per_segment"}
+    large = discover.other_forms(current, [default("strain_stiffening", -2e4), default("sensor_drift", 13.5)])
+    assert [effect for effect, _ in large] == ["strain_stiffening"] * 3
