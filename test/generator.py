@@ -32,7 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -680,6 +680,47 @@ def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int,
     return out
 
 
+def bench_separable(material: Material, effect: Effects, others: Effects, sensor: Sensor, seed: int,
+                    profile: Profile, layout: Layout, step: float = 1e-3) -> float:
+    """The part of ``effect``'s footprint the rest of the truth cannot take up: its change
+    of the noise-free readings beside ``others`` (the total force over its noise, each
+    marker coordinate over the camera's, less its mean: a constant offset is no
+    information), less its best linear compensation by the base's four parameters and
+    ``others``' (finite differences of relative ``step``; a zero or infinite value stays),
+    as ``bench_sizes`` measures it: the RMS over the force readings, in total-force noise.
+    ``bench_sizes`` asks what an effect changes; this what no other parameter could also
+    have changed: a baseline settling within the pull reads much like a stiffer block."""
+    readable = replace(sensor, noise=0.0, resolution=0.0, marker_noise=0.0)
+    force_std = math.sqrt(layout.tactile_rows * layout.tactile_cols) * sensor.noise \
+        * layout.width / layout.tactile_cols * layout.thickness
+
+    def readings(m: Material, e: Effects) -> np.ndarray:
+        data = synthesize(m, e, readable, seed, profile, layout)
+        markers = data.markers - data.markers.mean(axis=0)
+        return np.concatenate([_total_force(data.images, layout) / force_std,
+                               markers.ravel() / sensor.marker_noise])
+
+    combined = Effects(**{f.name: getattr(effect, f.name) or getattr(others, f.name) for f in fields(Effects)})
+    at = readings(material, others)
+    footprint = readings(material, combined) - at
+    columns = []
+    for name in ("E", "c1", "c2", "gamma"):
+        moved = replace(material, **{name: getattr(material, name) * (1.0 + step)})
+        columns.append(readings(moved, others) - at)
+    for name, value in ((f.name, getattr(others, f.name)) for f in fields(Effects)):
+        flat = np.ravel(np.asarray(value if value is not None else (), dtype=float))
+        for i in np.flatnonzero(np.isfinite(flat) & (flat != 0.0)):
+            moved_value = flat.copy()
+            moved_value[i] *= 1.0 + step
+            shaped = np.reshape(moved_value, np.shape(value)).tolist() if np.ndim(value) else float(moved_value[0])
+            shaped = tuple(tuple(x) if isinstance(x, list) else x for x in shaped) if isinstance(shaped, list) else shaped
+            columns.append(readings(material, replace(others, **{name: shaped})) - at)
+    jac = np.column_stack(columns)
+    left = footprint - jac @ np.linalg.lstsq(jac, footprint, rcond=None)[0]
+    n_force = sample_times(layout.rate_tactile, profile.knots[3]).size
+    return float(np.sqrt(np.sum(left ** 2) / n_force))
+
+
 def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
               quick: bool = False, outside: bool = False) -> dict[str, Any]:
     """The diagnosis bench's protocol (``rheo bench diagnosis --generator test/generator.py``):
@@ -691,15 +732,7 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
     a sensor of ``SENSORS`` but the noise-free one, its noises times ``noise_scale``;
     ``index mod 3`` hidden effects of distinct families (``bench_effect``); with
     ``outside``, none of them but one effect in no catalogue (``bench_outside``)."""
-    E = _log_uniform(rng, 1e4, 1e5)
-    material = Material(E=E, c1=E * float(rng.uniform(2.0, 15.0)), c2=E * float(rng.uniform(300.0, 3000.0)),
-                        gamma=float(rng.uniform(0.2, 0.45)))
-    keep, release = (BENCH_QUICK_KEEP, BENCH_QUICK_RELEASE) if quick else (BENCH_KEEP, BENCH_RELEASE)
-    profile = Profile(depth=float(rng.uniform(0.005, 0.012)), keep_time=float(rng.uniform(*keep)),
-                      release_time=float(rng.uniform(*release)))
-    base = SENSORS[str(rng.choice(BENCH_SENSORS))]
-    sensor = replace(base, noise=base.noise * noise_scale, marker_noise=base.marker_noise * noise_scale)
-    layout, seed = Layout(), int(rng.integers(0, 2**31 - 1))
+    material, profile, base, sensor, layout, seed = _bench_draw(rng, noise_scale, quick)
     if outside:
         name = str(rng.choice(BENCH_OUTSIDE))
         fields, values, signal = bench_outside(rng, name)
@@ -710,11 +743,11 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
         return {"hidden": [], "outside": [{"effect": name, "signal": signal, "size": size, "params": values}],
                 **sizes, "params_file": str(out_dir.with_name(out_dir.name + ".params.yaml")),
                 "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name}}
-    drawn = [(family, *bench_effect(rng, family, material, profile, layout.height))
-             for family in rng.choice(BENCH_FAMILIES, size=index % 3, replace=False)]
+    drawn = _bench_hidden(rng, index, material, profile, layout)
+    separable = _separable_sizes(material, drawn, sensor, seed, profile, layout)
     hidden = [{"effect": str(family), "form": form, "params": values,
-               **bench_sizes(material, Effects(**fields), sensor, seed, profile, layout)}
-              for family, form, fields, values in drawn]
+               **bench_sizes(material, Effects(**fields), sensor, seed, profile, layout), "size_separable": size}
+              for (family, form, fields, values), size in zip(drawn, separable)]
     effects = Effects(**{k: v for _, _, fields, _ in drawn for k, v in fields.items()})
     generate(out_dir, material=material, effects=effects, sensor=sensor, seed=seed, profile=profile, layout=layout)
     return {"hidden": hidden, **bench_sizes(material, effects, sensor, seed, profile, layout),
@@ -722,6 +755,48 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
             "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name, "noise": sensor.noise,
                      "marker_noise": sensor.marker_noise, "material": asdict(material),
                      "depth": profile.depth, "keep_time": profile.keep_time, "release_time": profile.release_time}}
+
+
+def bench_separable_sizes(rng: np.random.Generator, index: int, noise_scale: float = 1.0,
+                          quick: bool = False) -> list[float]:
+    """Each hidden effect's ``size_separable`` of bench bag ``index`` drawn from ``rng``
+    (``bench_bag``'s draws, nothing written): a bench run before the size existed is
+    scored by it afterwards (``rheo bench diagnosis --merge ... --generator``)."""
+    material, profile, _, sensor, layout, seed = _bench_draw(rng, noise_scale, quick)
+    return _separable_sizes(material, _bench_hidden(rng, index, material, profile, layout),
+                            sensor, seed, profile, layout)
+
+
+def _bench_draw(rng: np.random.Generator, noise_scale: float, quick: bool
+                ) -> tuple[Material, Profile, Sensor, Sensor, Layout, int]:
+    """``bench_bag``'s material, profile, sensor (as drawn, and with its noises scaled),
+    layout and noise seed."""
+    E = _log_uniform(rng, 1e4, 1e5)
+    material = Material(E=E, c1=E * float(rng.uniform(2.0, 15.0)), c2=E * float(rng.uniform(300.0, 3000.0)),
+                        gamma=float(rng.uniform(0.2, 0.45)))
+    keep, release = (BENCH_QUICK_KEEP, BENCH_QUICK_RELEASE) if quick else (BENCH_KEEP, BENCH_RELEASE)
+    profile = Profile(depth=float(rng.uniform(0.005, 0.012)), keep_time=float(rng.uniform(*keep)),
+                      release_time=float(rng.uniform(*release)))
+    base = SENSORS[str(rng.choice(BENCH_SENSORS))]
+    sensor = replace(base, noise=base.noise * noise_scale, marker_noise=base.marker_noise * noise_scale)
+    return material, profile, base, sensor, Layout(), int(rng.integers(0, 2**31 - 1))
+
+
+def _bench_hidden(rng: np.random.Generator, index: int, material: Material, profile: Profile,
+                  layout: Layout) -> list[tuple[str, str, dict[str, Any], dict[str, float]]]:
+    """``bench_bag``'s hidden effects: ``index mod 3`` of distinct families (family, form,
+    ``Effects`` fields, values)."""
+    return [(str(family), *bench_effect(rng, family, material, profile, layout.height))
+            for family in rng.choice(BENCH_FAMILIES, size=index % 3, replace=False)]
+
+
+def _separable_sizes(material: Material, drawn: list[tuple[str, str, dict[str, Any], dict[str, float]]],
+                     sensor: Sensor, seed: int, profile: Profile, layout: Layout) -> list[float]:
+    """``bench_separable`` of each drawn effect beside the others."""
+    return [bench_separable(material, Effects(**fields),
+                            Effects(**{k: v for j, (_, _, f, _) in enumerate(drawn) if j != i for k, v in f.items()}),
+                            sensor, seed, profile, layout)
+            for i, (_, _, fields, _) in enumerate(drawn)]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from generator import SENSORS, Effects, Layout, Material, Profile, bench_separable, bench_separable_sizes, bench_sizes
 
 from rheo_ros.bench import diagnosis
 
@@ -289,3 +290,48 @@ def test_runs_of_one_bench_merge_into_one_table_and_others_are_refused(tmp_path)
         diagnosis.run(merge=f"{a},{_run_file(tmp_path / 'c2.json', 8, [_row([])], noise_scale=2.0)}")
     with pytest.raises(ValueError, match=r"a\.json both hold seed 5's bags"):
         diagnosis.run(merge=f"{a},{a}")
+
+
+def test_merged_runs_are_scored_by_the_separable_size_the_generator_gives_afterwards(tmp_path):
+    """``--merge ... --generator``: rows made before the separable size existed get it from
+    the generator's ``bench_separable_sizes`` (each bag drawn again from its seed and
+    index), and the thresholds and the accuracy above them are reported by it too. Here a
+    miss beside a large effect is above the family's threshold by its readable size and
+    below it by what the rest of the truth cannot take up."""
+    single = _row([("sensor_drift", "settling", 1.0)], ["sensor_drift"])
+    pair = _row([("sensor_drift", "settling", 1.9), ("adhesion", "fading", 30.0)], ["adhesion"])
+    stuck = _row([("adhesion", "fading", 20.0)], ["adhesion"])
+    path = _run_file(tmp_path / "a.json", 5, [stuck, single, pair])
+    calls = []
+
+    def separable(rng, index, noise_scale, quick):
+        calls.append((index, noise_scale, quick))
+        return {0: [18.0], 1: [0.9], 2: [0.3, 25.0]}[index]
+
+    result = diagnosis.merged([path], 0.95, separable)
+    assert calls == [(0, 1.0, True), (1, 1.0, True), (2, 1.0, True)]
+    assert [h["size_separable"] for h in result["bags"][2]["hidden"]] == [0.3, 25.0]
+    assert (result["above"]["bags"], result["above"]["exact"]) == (3, 2)   # readable: the pair is above
+    assert result["thresholds_separable"]["sensor_drift"]["threshold"] == 0.9
+    assert (result["above_separable"]["bags"], result["above_separable"]["exact"]) == (2, 2)
+    assert (result["below_separable"]["bags"], result["below_separable"]["exact"]) == (1, 0)
+    assert "by the separable size" in diagnosis.format_table(result)
+    assert "separable" not in diagnosis.format_table(diagnosis.merged([path], 0.95))
+
+
+def test_the_generator_measures_what_the_rest_of_the_truth_cannot_take_up():
+    """``generator.bench_separable``: generator seed 17 bag 26 (each cell's baseline settling
+    by 15 Pa over 7.4 s; adhesion fading from 689 Pa over 12.8 s). The drift changes the
+    total force by 1.88 x its noise; the base's four parameters could make 1.40 of it
+    without a drift left out (markers counted), and beside the adhesion 0.28 is left
+    (measured; 5 % tolerance). The adhesion, 32.7 x by its readable size, keeps 14.6."""
+    material = Material(E=35738.95694096422, c1=387138.3676668163, c2=51717241.66260056, gamma=0.3862116441665667)
+    profile = Profile(depth=0.005928736407747945, keep_time=17.302158250540067, release_time=23.02349802423421)
+    sensor, seed, layout = SENSORS["no_dead_band"], 1997897843, Layout()
+    drift = Effects(drift=(15.21956272151568, 7.411839850948858, 0.0))
+    adhesion = Effects(adhesion=(688.6052505730303, 12.823566200889314))
+    assert bench_sizes(material, drift, sensor, seed, profile, layout)["size_live"] == pytest.approx(1.876, rel=0.01)
+    assert bench_separable(material, drift, Effects(), sensor, seed, profile, layout) == pytest.approx(1.40, rel=0.05)
+    assert bench_separable(material, drift, adhesion, sensor, seed, profile, layout) == pytest.approx(0.277, rel=0.05)
+    assert bench_separable_sizes(np.random.default_rng((17, 26)), 26, 1.0, True) == pytest.approx([0.277, 14.58],
+                                                                                                  rel=0.05)

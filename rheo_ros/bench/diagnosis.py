@@ -29,6 +29,15 @@ make in the noise-free total bottom force, over the std of the total force's noi
 (``sqrt(cells) x cell noise x cell area``); ``size_live`` is the same through the
 sensor's dead band and floor (what a noise-free sensor would read): an adhesion of a
 few percent, or a drift below zero, can be large by ``size`` and still unreadable.
+A source may also give ``size_separable`` for each hidden effect (``hidden`` items; or
+afterwards through a function ``bench_separable_sizes(rng, index, noise_scale, quick)``
+for runs made without it, ``--merge ... --generator``): the part of its footprint the
+rest of the truth cannot take up, its change of the noise-free total force and markers
+beside the other hidden effects less the best linear compensation by the base's
+parameters and theirs, on the same scale. A settling drift beside an adhesion can change
+the force by 1.9 x the noise and leave 0.28 x that no other parameter could also make
+(generator seed 17 bag 26): a threshold read off single-effect bags does not carry over
+to it by ``size_live``. Thresholds and accuracy above them are then reported by it too.
 
 Two sources exist: the package's simulator (:func:`simulator_bag`, the default) and any
 file given by ``--generator PATH`` that defines ``bench_bag`` (:func:`load_source`;
@@ -109,6 +118,7 @@ from rheo_ros.rig.simulator import simulate_run
 # A source of bags: (rng, index, out_dir, noise_scale, quick) -> truth (module docstring).
 BagSource = Callable[[np.random.Generator, int, Path, float, bool], dict[str, Any]]
 PROTOCOL = "bench_bag"          # the function a --generator file defines
+SEPARABLE = "bench_separable_sizes"   # and may define: each hidden effect's separable size
 SIMULATOR = "rheo_ros simulator"
 FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
 OUTCOMES = ("exact", "missed", "extra", "unexplained", "undecided", "refused", "failed")
@@ -284,6 +294,15 @@ def load_source(path: str | Path | None) -> tuple[str, BagSource]:
     return str(getattr(module, "GENERATOR_ID", file)), source
 
 
+def separable_source(path: str | Path) -> Callable[..., list[float]] | None:
+    """The :data:`SEPARABLE` function of the generator file at ``path`` (loaded as
+    :func:`load_source` loads it), or None where it defines none."""
+    load_source(path)
+    module = sys.modules[f"rheo_bench_source_{Path(path).stem}"]
+    found = getattr(module, SEPARABLE, None)
+    return found if callable(found) else None
+
+
 def check_truth(truth: dict[str, Any], index: int) -> dict[str, Any]:
     """A source's truth, checked: every hidden family and form is the package's, no
     family twice, sizes finite and non-negative. Raises ValueError naming the bag."""
@@ -441,13 +460,27 @@ def thresholds(rows: list[dict[str, Any]], target: float, size: str = "size_live
     return {key: detection_threshold(items, target) for key, items in sorted(groups.items())}
 
 
-def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]]) -> bool:
+def above_thresholds(row: dict[str, Any], family_thresholds: dict[str, dict[str, Any]],
+                     size: str = "size_live") -> bool:
     """Whether each of the bag's hidden effects is at or above its family's threshold by its
-    readable size (a family with no threshold: not above)."""
+    readable size (or ``size``; a family with no threshold: not above)."""
     def above(h: dict[str, Any]) -> bool:
         th = family_thresholds.get(h["effect"], {}).get("threshold")
-        return th is not None and h["size_live"] >= th
+        return th is not None and h[size] >= th
     return all(above(h) for h in row["hidden"])
+
+
+def separable_scores(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
+    """The thresholds and the accuracy above and below them by ``size_separable`` (module
+    docstring), where every hidden effect has one; else empty."""
+    effect_rows = [r for r in rows if r["hidden"]]
+    if not effect_rows or not all("size_separable" in h for r in effect_rows for h in r["hidden"]):
+        return {}
+    per = thresholds(rows, target, "size_separable")
+    families = {k: v for k, v in per.items() if ":" not in k}
+    above = [r for r in effect_rows if above_thresholds(r, families, "size_separable")]
+    return {"thresholds_separable": per, "above_separable": _accuracy(above),
+            "below_separable": _accuracy([r for r in effect_rows if r not in above])}
 
 
 def _accuracy(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -497,6 +530,7 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "thresholds_whole": whole,
         "threshold_weakest": detection_threshold(weakest, target),
         "above": _accuracy(above), "below": _accuracy(below),
+        **separable_scores(rows, target),
         "forms": forms,
         "forms_right": sum(c.get(f, 0) for fam in forms.values() for f, c in fam.items()),
         "forms_named": sum(sum(c.values()) for fam in forms.values() for c in fam.values()),
@@ -527,9 +561,12 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     ``default_rng((seed, i))``. ``target``: default by the noise (:func:`default_target`);
     ``plot``: also write :func:`plot_accuracy` there; ``outside``: every bag hides an
     effect in no catalogue instead. ``merge``: comma-separated JSON files of earlier runs
-    (``--json``) to score together instead (:func:`merged`): no bag is made."""
+    (``--json``) to score together instead (:func:`merged`): no bag is made; with
+    ``generator``, its :data:`SEPARABLE` function gives the bags' separable sizes the runs
+    lack."""
     if merge:
-        result = merged([Path(f) for f in merge.split(",") if f], target)
+        result = merged([Path(f) for f in merge.split(",") if f], target,
+                        separable_source(generator) if generator else None)
         if plot:
             plot_accuracy(result, plot)
             result["plot"] = str(plot)
@@ -563,11 +600,14 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
 MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue")   # what runs pooled must share
 
 
-def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
+def merged(paths: list[Path], target: float | None = None,
+           separable: Callable[..., list[float]] | None = None) -> dict[str, Any]:
     """The runs' bags (their ``--json`` files) scored as one bench: a long bench made in
     parts (sessions, machines), each part its own seed. The runs must share the source,
     the noise, the records' length and the kind of bags (``MERGED_AS_ONE``), and no two
-    may hold the same bags (one seed twice).
+    may hold the same bags (one seed twice). ``separable``: the source's
+    :data:`SEPARABLE` function, which gives each bag's hidden effects the separable size
+    a run made before it existed lacks (the bag drawn again, nothing analysed).
 
     Raises:
         ValueError: names the file and what differs, or the seed met twice."""
@@ -586,6 +626,8 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
             seeds[seed] = path
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
     rows = [_rescored({"seed": r["seed"], **row}) for r in runs for row in r["bags"]]
+    if separable is not None:
+        rows = [_with_separable(row, separable, first["noise_scale"], bool(first.get("quick"))) for row in rows]
     target = default_target(first["noise_scale"]) if target is None else target
     return {
         **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
@@ -593,6 +635,18 @@ def merged(paths: list[Path], target: float | None = None) -> dict[str, Any]:
         **score(rows, target), **_times(rows, float(sum(r["total_seconds"] for r in runs))),
         "bags": rows,
     }
+
+
+def _with_separable(row: dict[str, Any], separable: Callable[..., list[float]], noise_scale: float,
+                    quick: bool) -> dict[str, Any]:
+    """``row`` with each hidden effect's ``size_separable`` (from ``separable``, its bag
+    drawn again from ``default_rng((seed, index))``) where it lacks one."""
+    if not row["hidden"] or all("size_separable" in h for h in row["hidden"]):
+        return row
+    sizes = separable(np.random.default_rng((row["seed"], row["index"])), row["index"], noise_scale, quick)
+    if len(sizes) != len(row["hidden"]):
+        raise ValueError(f"{_bag_name(row)}: {SEPARABLE} gave {len(sizes)} sizes for {len(row['hidden'])} hidden effects")
+    return {**row, "hidden": [{**h, "size_separable": float(size)} for h, size in zip(row["hidden"], sizes)]}
 
 
 def _rescored(row: dict[str, Any]) -> dict[str, Any]:
@@ -696,6 +750,13 @@ def format_table(result: dict[str, Any]) -> str:
             f"({th['correct_above']}/{th['bags_above']} exact above)" for key, th in result["thresholds_whole"].items()))
     lines.append(f"bags with every effect above its family's threshold: {_fraction(result['above']['exact'], result['above']['bags'])} "
                  f"exact; below: {_fraction(result['below']['exact'], result['below']['bags'])}")
+    if "thresholds_separable" in result:
+        lines.append("by the separable size (what the rest of the truth cannot take up): thresholds " + "; ".join(
+            f"{key} {'none' if th['threshold'] is None else format(th['threshold'], '.3g')} "
+            f"({th['correct_above']}/{th['bags_above']} exact above)"
+            for key, th in result["thresholds_separable"].items() if ":" not in key)
+            + f"; bags with every effect above: {_fraction(result['above_separable']['exact'], result['above_separable']['bags'])} "
+            f"exact; below: {_fraction(result['below_separable']['exact'], result['below_separable']['bags'])}")
     lines.append(f"forms, where the family was named: {_fraction(result['forms_right'], result['forms_named'])} right "
                  "(" + "; ".join(f"{fam}:{hid} -> " + ", ".join(f"{f} {n}" for f, n in named.items())
                                  for fam, by in result["forms"].items() for hid, named in by.items()) + ")")
@@ -713,7 +774,9 @@ def format_table(result: dict[str, Any]) -> str:
     if wrong:
         lines.append("not exact:")
         for r in sorted(wrong, key=lambda r: -r["size_live"]):
-            sizes = ", ".join(f"{h['effect']} {h['size_live']:.3g}" for h in r["hidden"] or ())
+            sizes = ", ".join(f"{h['effect']} {h['size_live']:.3g}"
+                              + (f" [{h['size_separable']:.3g}]" if "size_separable" in h else "")
+                              for h in r["hidden"] or ())
             lines.append(f"  {_bag_name(r)}: {_hidden_text(r)} (readable {sizes or '0'}) -> "
                          f"{'+'.join(r['named']) or 'none'}: {r['outcome']}"
                          + (f" [{', '.join(r['undecided'])}]" if r["undecided"] else "")
