@@ -708,17 +708,27 @@ def bench_separable(material: Material, effect: Effects, others: Effects, sensor
         moved = replace(material, **{name: getattr(material, name) * (1.0 + step)})
         columns.append(readings(moved, others) - at)
     for name, value in ((f.name, getattr(others, f.name)) for f in fields(Effects)):
-        flat = np.ravel(np.asarray(value if value is not None else (), dtype=float))
-        for i in np.flatnonzero(np.isfinite(flat) & (flat != 0.0)):
-            moved_value = flat.copy()
-            moved_value[i] *= 1.0 + step
-            shaped = np.reshape(moved_value, np.shape(value)).tolist() if np.ndim(value) else float(moved_value[0])
-            shaped = tuple(tuple(x) if isinstance(x, list) else x for x in shaped) if isinstance(shaped, list) else shaped
-            columns.append(readings(material, replace(others, **{name: shaped})) - at)
+        flat = _flattened(value)
+        for i, x in enumerate(flat):
+            if math.isfinite(x) and x != 0.0:
+                moved = [y * (1.0 + step) if j == i else y for j, y in enumerate(flat)]
+                columns.append(readings(material, replace(others, **{name: _shaped(value, iter(moved))})) - at)
     jac = np.column_stack(columns)
     left = footprint - jac @ np.linalg.lstsq(jac, footprint, rcond=None)[0]
     n_force = sample_times(layout.rate_tactile, profile.knots[3]).size
     return float(np.sqrt(np.sum(left ** 2) / n_force))
+
+
+def _flattened(value: Any) -> list[float]:
+    """The numbers of an ``Effects`` field (a number, nested tuples of them, or None)."""
+    if value is None:
+        return []
+    return [x for v in value for x in _flattened(v)] if isinstance(value, tuple) else [float(value)]
+
+
+def _shaped(like: Any, numbers: Any) -> Any:
+    """``numbers`` (an iterator) in the shape of ``like`` (``_flattened``'s inverse)."""
+    return tuple(_shaped(v, numbers) for v in like) if isinstance(like, tuple) else next(numbers)
 
 
 def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
