@@ -522,7 +522,7 @@ def test_a_familys_other_forms_are_tried_where_the_data_can_show_them():
     """``discover.other_forms``: adhesion's held form is fitted where the model misfits in
     the release's force; with nothing readable there (a release wholly under the dead band,
     no bound crossed), where it misfits in any phase or signal (``decision.judged_where``);
-    nowhere else, and not for a family far behind a decisive leader."""
+    nowhere else, and not for a family far behind a large leader."""
     from rheo_ros.diagnosis.discover import other_forms
 
     def default(effect, delta_bic):
@@ -535,9 +535,13 @@ def test_a_familys_other_forms_are_tried_where_the_data_can_show_them():
     assert other_forms(Fit(quiet, bic=0.0), defaults) == []
     unread = {**quiet, "release": (0.0, 0), ("markers", "release"): (misfit, 200)}
     assert ("adhesion", "held") in other_forms(Fit(unread, bic=0.0), defaults)
-    # Far behind a decisive leader (under a tenth of its drop): not worth a fit.
-    leader = [default("relaxation_branch", -1000.0), default("adhesion", -30.0)]
-    assert all(e != "adhesion" for e, _ in other_forms(Fit({**quiet, "release": (misfit, 200)}, bic=0.0), leader))
+    # Far behind a large leader (over FORM_LEADER, under a tenth of its drop): not worth a
+    # fit; behind a leader of 1000 or less it is (``FORM_LEADER``).
+    release = Fit({**quiet, "release": (misfit, 200)}, bic=0.0)
+    leader = [default("relaxation_branch", -2.0e4), default("adhesion", -30.0)]
+    assert all(e != "adhesion" for e, _ in other_forms(release, leader))
+    small = [default("relaxation_branch", -1000.0), default("adhesion", -30.0)]
+    assert ("adhesion", "held") in other_forms(release, small)
 
 
 def test_a_base_parameter_left_at_a_bound_by_a_misfitting_model_restarts_from_the_closed_form(monkeypatch):
