@@ -281,13 +281,7 @@ def load_source(path: str | Path | None) -> tuple[str, BagSource]:
     if path is None:
         return SIMULATOR, simulator_bag
     file = Path(path)
-    name = f"rheo_bench_source_{file.stem}"
-    spec = importlib.util.spec_from_file_location(name, file)
-    if spec is None or spec.loader is None or not file.is_file():
-        raise ValueError(f"{file}: not a Python file to load a bag source from")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module   # dataclasses look their module up while the file runs
-    spec.loader.exec_module(module)
+    module = _source_module(file)
     source = getattr(module, PROTOCOL, None)
     if not callable(source):
         raise ValueError(f"{file}: defines no function {PROTOCOL}(rng, index, out_dir, noise_scale, quick)")
@@ -295,12 +289,26 @@ def load_source(path: str | Path | None) -> tuple[str, BagSource]:
 
 
 def separable_source(path: str | Path) -> Callable[..., list[float]] | None:
-    """The :data:`SEPARABLE` function of the generator file at ``path`` (loaded as
-    :func:`load_source` loads it), or None where it defines none."""
-    load_source(path)
-    module = sys.modules[f"rheo_bench_source_{Path(path).stem}"]
-    found = getattr(module, SEPARABLE, None)
+    """The :data:`SEPARABLE` function of the generator file at ``path``, or None where it
+    defines none."""
+    found = getattr(_source_module(Path(path)), SEPARABLE, None)
     return found if callable(found) else None
+
+
+def _source_module(file: Path) -> Any:
+    """The Python file ``file``, loaded by importlib (it need not be importable as a package).
+
+    Raises:
+        ValueError: it is not a Python file that can be loaded.
+    """
+    name = f"rheo_bench_source_{file.stem}"
+    spec = importlib.util.spec_from_file_location(name, file)
+    if spec is None or spec.loader is None or not file.is_file():
+        raise ValueError(f"{file}: not a Python file to load a bag source from")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module   # dataclasses look their module up while the file runs
+    spec.loader.exec_module(module)
+    return module
 
 
 def check_truth(truth: dict[str, Any], index: int) -> dict[str, Any]:
@@ -476,11 +484,19 @@ def separable_scores(rows: list[dict[str, Any]], target: float) -> dict[str, Any
     effect_rows = [r for r in rows if r["hidden"]]
     if not effect_rows or not all("size_separable" in h for r in effect_rows for h in r["hidden"]):
         return {}
-    per = thresholds(rows, target, "size_separable")
+    per, above, below = _split_by_thresholds(rows, target, "size_separable")
+    return {"thresholds_separable": per, "above_separable": _accuracy(above), "below_separable": _accuracy(below)}
+
+
+def _split_by_thresholds(rows: list[dict[str, Any]], target: float, size: str
+                         ) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
+    """The thresholds by ``size`` (:func:`thresholds`) and the rows with hidden effects
+    above every family's and the rest."""
+    per = thresholds(rows, target, size)
     families = {k: v for k, v in per.items() if ":" not in k}
-    above = [r for r in effect_rows if above_thresholds(r, families, "size_separable")]
-    return {"thresholds_separable": per, "above_separable": _accuracy(above),
-            "below_separable": _accuracy([r for r in effect_rows if r not in above])}
+    effect_rows = [r for r in rows if r["hidden"]]
+    above = [r for r in effect_rows if above_thresholds(r, families, size)]
+    return per, above, [r for r in effect_rows if r not in above]
 
 
 def _accuracy(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -512,11 +528,8 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     rows = [r for r in rows if r["hidden"] is not None and not r["outside"]]
     effect_rows = [r for r in rows if r["hidden"]]
     clean = [r for r in rows if not r["hidden"] and r["outcome"] not in NO_ANSWER]
-    per = thresholds(rows, target)
-    families = {k: v for k, v in per.items() if ":" not in k}
+    per, above, below = _split_by_thresholds(rows, target, "size_live")
     whole = thresholds(rows, target, "size", forms=False)
-    above = [r for r in effect_rows if above_thresholds(r, families)]
-    below = [r for r in effect_rows if not above_thresholds(r, families)]
     weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
     forms = form_scores(rows)
     fitted = [r for r in clean if r["force_rms_to_noise"] is not None and np.isfinite(r["force_rms_to_noise"])]
