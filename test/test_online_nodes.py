@@ -59,14 +59,15 @@ class Graph:
             self.executor.spin_once(timeout_sec=0.05)
 
     def close(self) -> None:
-        for p in self.procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
+        running = [name for name, p in self.procs.items() if p.poll() is None]
+        for name in running:
+            self.procs[name].send_signal(signal.SIGINT)
         for p in self.procs.values():
             try:
                 p.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 p.kill()
+                p.wait()
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
         # Never a traceback, the shutdown by Ctrl-C included (checked when the test itself
@@ -74,6 +75,10 @@ class Graph:
         broken = {p.name: p.read_text()[-1500:] for p in self.tmp.glob("*.log") if "Traceback" in p.read_text()}
         if broken and sys.exc_info()[0] is None:
             pytest.fail(f"a traceback in {', '.join(broken)}: {broken}")
+        # Ctrl-C ends a running node within 10 s with exit status 0 (-9: killed, it did not stop).
+        codes = {name: self.procs[name].returncode for name in running}
+        if any(codes.values()) and sys.exc_info()[0] is None:
+            pytest.fail(f"nodes that did not exit cleanly on Ctrl-C: {codes}")
 
 
 @pytest.fixture(scope="module")

@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import rclpy
@@ -13,6 +16,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 
 from rheo_ros.config.setup import ParamsError, check_params
 from rheo_ros.config.table import PARAMETERS
@@ -72,18 +76,26 @@ def wants_help(argv: list[str]) -> bool:
     return any(a in ("-h", "--help") for a in user)
 
 
-# Seconds a node waits, after rclpy raised from a subscription, for a shutdown under way.
-SHUTDOWN_GRACE = 2.0
+@contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """An event set by Ctrl-C or SIGTERM, in place of rclpy's handlers (init rclpy with
+    ``SignalHandlerOptions.NO``); the previous handlers are back on exit.
+
+    rclpy's own handler chains to Python's, which raises KeyboardInterrupt between any two
+    bytecodes: once it landed inside rclpy's ``Task.__init__`` and the half-built task's
+    ``__del__`` printed a traceback at shutdown. An event is looked at by the spin loop.
+    """
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
-def context_down_within(seconds: float) -> bool:
-    """Whether rclpy's default context is (or goes) down within ``seconds``."""
-    deadline = time.monotonic() + seconds
-    while rclpy.ok():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
+# s between two looks at the stop event: how late a node answers Ctrl-C at most.
+SPIN_PERIOD = 0.1
 
 
 def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Executor] = SingleThreadedExecutor
@@ -93,30 +105,25 @@ def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Exec
     if wants_help(sys.argv):
         print(node_help(sys.argv[0].rsplit("/", 1)[-1], summary))
         return
-    rclpy.init(args=sys.argv)
-    node = None
-    try:
-        node = make()
-        spinner = executor()
-        spinner.add_node(node)
-        spinner.spin()
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    except RuntimeError:
-        # Ctrl-C or SIGTERM while a message was being taken: rclpy raises from the
-        # half-torn-down subscription ("Unable to convert call argument"), at times before
-        # its signal handler has shut the context down (seen under a loaded test suite). A
-        # shutdown, not a failure; a context still up a moment later is a real error.
-        if not context_down_within(SHUTDOWN_GRACE):
-            raise
-    except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
-        reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc   # str(KeyError) adds quotes
-        print(f"{sys.argv[0]}: error: {reason}", file=sys.stderr)
-        sys.exit(2)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    with stop_on_signals() as stop:
+        rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+        node = None
+        try:
+            node = make()
+            spinner = executor()
+            spinner.add_node(node)
+            while not stop.is_set() and rclpy.ok():
+                spinner.spin_once(timeout_sec=SPIN_PERIOD)
+        except rclpy.executors.ExternalShutdownException:
+            pass   # the node shut its context down (stage.exit_when_done)
+        except (ValueError, KeyError) as exc:  # ParamsError is a ValueError
+            reason = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc   # str(KeyError) adds quotes
+            print(f"{sys.argv[0]}: error: {reason}", file=sys.stderr)
+            sys.exit(2)
+        finally:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
 
 
 def diagnostic_array(node: Node, level: str, message: str, values: dict[str, Any]) -> DiagnosticArray:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
 import tempfile
 import threading
 import time
@@ -28,6 +27,7 @@ from rosgraph_msgs.msg import Clock
 from rheo_ros.io.bag import bag_reader, require_bag
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.messages import MessageTypes
+from rheo_ros.nodes.common import stop_on_signals
 from rheo_ros.nodes.errors import GraphError
 
 # KEEP_ALL + reliable: the writer holds what a reader has not acknowledged, so a slow
@@ -151,62 +151,59 @@ def play(path: str | Path, rate: float = 1.0, clock: bool = False, loops: int = 
             raise BagError(f"{path}: {', '.join(missing)}: not in the bag")
     classes = playable_classes(path, types, warn)   # before DDS starts
     types = {topic: types[topic] for topic in classes}
-    stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    profile = Path(tempfile.mkdtemp(prefix="rheo-play-")) / "fastdds_writer.xml"
-    profile.write_text(WRITER_PROFILE)
-    ours = "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ
-    if ours:
-        os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(profile)   # read when DDS starts, below
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("rheo_play")
-    try:
-        pubs: dict[str, Any] = {t: node.create_publisher(classes[t], t, PLAY_QOS) for t in types}
-        clock_pub = node.create_publisher(Clock, "/clock", PLAY_QOS) if clock else None
-        deadline = time.monotonic() + discovery_timeout
-        while wait_for and any(p.get_subscription_count() < wait_for for p in pubs.values()):
-            if time.monotonic() > deadline or stop.is_set():
-                short = [t for t, p in pubs.items() if p.get_subscription_count() < wait_for]
-                raise GraphError(f"{', '.join(short)}: fewer than {wait_for} subscriber(s) after "
-                                  f"{discovery_timeout:g} s")
-            rclpy.spin_once(node, timeout_sec=0.05)
-        counts, sent = dict.fromkeys(types, 0), 0
-        start_wall, start_bag, last_clock = time.monotonic(), None, -1
-        tick = Clock()
-        for topic, _, t, raw in _bag_messages(path, list(types), loops):
-            if stop.is_set():
-                break
-            if start_bag is None:
-                start_bag = t
-            if clock_pub is not None:
-                if t > last_clock:
-                    tick.clock.sec, tick.clock.nanosec = divmod(t, 1_000_000_000)
-                    clock_pub.publish(tick)
-                    last_clock = t
-            else:
-                delay = start_wall + (t - start_bag) * 1e-9 / rate - time.monotonic()
-                if delay > 0:
-                    stop.wait(delay)
-            if not _publish(pubs[topic], raw, stop):
-                break
-            counts[topic] += 1
-            sent += 1
-            if sent % ACK_EVERY == 0:
-                # Pacing: a backlog in a reader's queue makes each take slower.
-                for p in pubs.values():
-                    _acked(p, 5.0, stop)
-
-        # What a reader has not acknowledged dies with the writer: wait for it (not once
-        # the user stopped the play: Ctrl-C ends it within a second, what is in flight lost).
-        for p in pubs.values():
-            if not _acked(p, 60.0, stop) and not stop.is_set():
-                raise GraphError(f"{path}: a subscriber did not acknowledge every message within 60 s")
-        return counts
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-        shutil.rmtree(profile.parent, ignore_errors=True)   # DDS read it at start-up
+    with stop_on_signals() as stop:
+        profile = Path(tempfile.mkdtemp(prefix="rheo-play-")) / "fastdds_writer.xml"
+        profile.write_text(WRITER_PROFILE)
+        ours = "FASTDDS_DEFAULT_PROFILES_FILE" not in os.environ
         if ours:
-            os.environ.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+            os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(profile)   # read when DDS starts, below
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        node = rclpy.create_node("rheo_play")
+        try:
+            pubs: dict[str, Any] = {t: node.create_publisher(classes[t], t, PLAY_QOS) for t in types}
+            clock_pub = node.create_publisher(Clock, "/clock", PLAY_QOS) if clock else None
+            deadline = time.monotonic() + discovery_timeout
+            while wait_for and any(p.get_subscription_count() < wait_for for p in pubs.values()):
+                if time.monotonic() > deadline or stop.is_set():
+                    short = [t for t, p in pubs.items() if p.get_subscription_count() < wait_for]
+                    raise GraphError(f"{', '.join(short)}: fewer than {wait_for} subscriber(s) after "
+                                      f"{discovery_timeout:g} s")
+                rclpy.spin_once(node, timeout_sec=0.05)
+            counts, sent = dict.fromkeys(types, 0), 0
+            start_wall, start_bag, last_clock = time.monotonic(), None, -1
+            tick = Clock()
+            for topic, _, t, raw in _bag_messages(path, list(types), loops):
+                if stop.is_set():
+                    break
+                if start_bag is None:
+                    start_bag = t
+                if clock_pub is not None:
+                    if t > last_clock:
+                        tick.clock.sec, tick.clock.nanosec = divmod(t, 1_000_000_000)
+                        clock_pub.publish(tick)
+                        last_clock = t
+                else:
+                    delay = start_wall + (t - start_bag) * 1e-9 / rate - time.monotonic()
+                    if delay > 0:
+                        stop.wait(delay)
+                if not _publish(pubs[topic], raw, stop):
+                    break
+                counts[topic] += 1
+                sent += 1
+                if sent % ACK_EVERY == 0:
+                    # Pacing: a backlog in a reader's queue makes each take slower.
+                    for p in pubs.values():
+                        _acked(p, 5.0, stop)
+
+            # What a reader has not acknowledged dies with the writer: wait for it (not once
+            # the user stopped the play: Ctrl-C ends it within a second, what is in flight lost).
+            for p in pubs.values():
+                if not _acked(p, 60.0, stop) and not stop.is_set():
+                    raise GraphError(f"{path}: a subscriber did not acknowledge every message within 60 s")
+            return counts
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
+            shutil.rmtree(profile.parent, ignore_errors=True)   # DDS read it at start-up
+            if ours:
+                os.environ.pop("FASTDDS_DEFAULT_PROFILES_FILE", None)

@@ -11,9 +11,7 @@ most that much: ``rheo bag repair`` rebuilds the rest into a whole bag.
 from __future__ import annotations
 
 import os
-import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,6 +24,7 @@ from rclpy.signals import SignalHandlerOptions
 from rheo_ros.config.setup import params_yaml
 from rheo_ros.io.bag import RECORDING_PARAMS, BagWriter, typestore
 from rheo_ros.io.messages import MessageTypes
+from rheo_ros.nodes.common import stop_on_signals
 from rheo_ros.nodes.errors import GraphError
 
 
@@ -108,58 +107,55 @@ def record(
     Raises:
         GraphError: a topic did not appear on the graph within ``discovery_timeout`` s.
     """
-    stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("rheo_record")
-    try:
-        types: dict[str, str] = {}
-        deadline = time.monotonic() + discovery_timeout
-        while len(types) < len(topics) and time.monotonic() < deadline and not stop.is_set():
-            rclpy.spin_once(node, timeout_sec=0.05)
-            for name, names in node.get_topic_names_and_types():
-                if name in topics and names:
-                    types[name] = names[0]
-        missing = [t for t in topics if t not in types]
-        if missing:
-            raise GraphError(f"{', '.join(missing)}: not on the ROS graph after {discovery_timeout:g} s")
-        if params is None:
-            params, source = parameters_of_publishers(node, topics)
-            print(f"rheo record: storing {source}" if params else f"rheo record: no parameters stored ({source})",
-                  flush=True)
-        counts = dict.fromkeys(topics, 0)
-        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-        lookup = MessageTypes.rclpy().lookup
-        chosen = {t: types[t] for t in topics}
-        with BagWriter(out, params, topics=chosen, definitions=installed_definitions(list(chosen.values()))) as bag:
-            def writer(topic: str):
-                def on_message(data: bytes) -> None:
-                    bag.write_raw(topic, node.get_clock().now().nanoseconds, data)
-                    counts[topic] += 1
-                return on_message
-
-            subs = [node.create_subscription(lookup(types[topic]), topic, writer(topic), qos, raw=True)
-                    for topic in topics]
-            # Wait for the graph, not a fixed time: every subscription matched.
-            while not stop.is_set() and any(s.get_publisher_count() == 0 for s in subs):
-                if time.monotonic() > deadline:
-                    late = [t for t, s in zip(topics, subs) if s.get_publisher_count() == 0]
-                    raise GraphError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
-                rclpy.spin_once(node, timeout_sec=0.01)
-            if params is not None:
-                (Path(out) / RECORDING_PARAMS).write_text(params_yaml(params))   # metadata.yaml comes at close
-            print(f"recording {len(topics)} topic(s)", flush=True)
-            end = None if duration is None else time.monotonic() + duration
-            flushed = time.monotonic()
-            while not stop.is_set() and (end is None or time.monotonic() < end):
+    with stop_on_signals() as stop:
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+        node = rclpy.create_node("rheo_record")
+        try:
+            types: dict[str, str] = {}
+            deadline = time.monotonic() + discovery_timeout
+            while len(types) < len(topics) and time.monotonic() < deadline and not stop.is_set():
                 rclpy.spin_once(node, timeout_sec=0.05)
-                if time.monotonic() - flushed >= FLUSH_PERIOD:
-                    bag.flush()
-                    flushed = time.monotonic()
-        (Path(out) / RECORDING_PARAMS).unlink(missing_ok=True)   # closed: the metadata has them
-        return counts
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+                for name, names in node.get_topic_names_and_types():
+                    if name in topics and names:
+                        types[name] = names[0]
+            missing = [t for t in topics if t not in types]
+            if missing:
+                raise GraphError(f"{', '.join(missing)}: not on the ROS graph after {discovery_timeout:g} s")
+            if params is None:
+                params, source = parameters_of_publishers(node, topics)
+                print(f"rheo record: storing {source}" if params else f"rheo record: no parameters stored ({source})",
+                      flush=True)
+            counts = dict.fromkeys(topics, 0)
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+            lookup = MessageTypes.rclpy().lookup
+            chosen = {t: types[t] for t in topics}
+            with BagWriter(out, params, topics=chosen, definitions=installed_definitions(list(chosen.values()))) as bag:
+                def writer(topic: str):
+                    def on_message(data: bytes) -> None:
+                        bag.write_raw(topic, node.get_clock().now().nanoseconds, data)
+                        counts[topic] += 1
+                    return on_message
+
+                subs = [node.create_subscription(lookup(types[topic]), topic, writer(topic), qos, raw=True)
+                        for topic in topics]
+                # Wait for the graph, not a fixed time: every subscription matched.
+                while not stop.is_set() and any(s.get_publisher_count() == 0 for s in subs):
+                    if time.monotonic() > deadline:
+                        late = [t for t, s in zip(topics, subs) if s.get_publisher_count() == 0]
+                        raise GraphError(f"{', '.join(late)}: no publisher matched after {discovery_timeout:g} s")
+                    rclpy.spin_once(node, timeout_sec=0.01)
+                if params is not None:
+                    (Path(out) / RECORDING_PARAMS).write_text(params_yaml(params))   # metadata.yaml comes at close
+                print(f"recording {len(topics)} topic(s)", flush=True)
+                end = None if duration is None else time.monotonic() + duration
+                flushed = time.monotonic()
+                while not stop.is_set() and (end is None or time.monotonic() < end):
+                    rclpy.spin_once(node, timeout_sec=0.05)
+                    if time.monotonic() - flushed >= FLUSH_PERIOD:
+                        bag.flush()
+                        flushed = time.monotonic()
+            (Path(out) / RECORDING_PARAMS).unlink(missing_ok=True)   # closed: the metadata has them
+            return counts
+        finally:
+            node.destroy_node()
+            rclpy.try_shutdown()
