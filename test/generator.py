@@ -44,6 +44,7 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 from scipy.signal import lsim, lti
+from scipy.stats import norm
 
 GENERATOR_ID = "test/generator.py (independent homogeneous block, scipy solve_ivp)"
 PARAMS_KEY = "rheo_ros.params"
@@ -664,6 +665,26 @@ def _total_force(images: np.ndarray, layout: Layout) -> np.ndarray:
     return images.astype(float).sum(axis=(1, 2)) * cell
 
 
+def expected_reading(pressure: np.ndarray, sensor: Sensor) -> np.ndarray:
+    """The mean reading (Pa) of cells at ``pressure`` (Pa) through ``sensor``'s noise,
+    floor, dead band and saturation: E[min(x 1(x >= d), S)], x = p + noise, d the dead
+    band (0 with the floor alone, none without either). Its quantisation, finer than the
+    noise, averages out. Near zero a noisy floored cell moves by only part of a change of
+    its pressure (half at p = 0): what the readings can show, not the noise-free chain."""
+    p = np.asarray(pressure, dtype=float)
+    low = sensor.dead_band if sensor.dead_band > 0 else (0.0 if sensor.floor else -math.inf)
+    top = sensor.saturation
+    if sensor.noise == 0:
+        return np.minimum(np.where(p < low, 0.0, p), top)
+    sd = sensor.noise
+    a = (low - p) / sd
+    out = p * norm.sf(a) + sd * norm.pdf(a)   # E[x 1(x >= d)], exact for d = -inf too
+    if math.isfinite(top):
+        b = (top - p) / sd
+        out -= p * norm.sf(b) + sd * norm.pdf(b) - top * norm.sf(b)   # over S: S, not x
+    return out
+
+
 def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int, profile: Profile,
                 layout: Layout) -> dict[str, float]:
     """The size of ``effects``: the RMS of their change of the noise-free total force over
@@ -684,9 +705,10 @@ def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int,
 def bench_separable(material: Material, effect: Effects, others: Effects, sensor: Sensor, seed: int,
                     profile: Profile, layout: Layout, step: float = 1e-3) -> float:
     """The part of ``effect``'s footprint the rest of the truth cannot take up: its change
-    of the noise-free readings beside ``others`` (the total force over its noise, each
-    marker coordinate over the camera's, less its mean: a constant offset is no
-    information), less its best compensation by the base's four parameters and
+    of the expected readings beside ``others`` (``expected_reading``: a drift of a tenth
+    of the noise on an idle floored cell moves its mean by half as much; the total force
+    over its noise, each marker coordinate over the camera's, less its mean: a constant
+    offset is no information), less its best compensation by the base's four parameters and
     ``others``' (a zero or infinite value stays), as ``bench_sizes`` measures it: the RMS
     over the force readings, in total-force noise. ``bench_sizes`` asks what an effect
     changes; this what no other parameter could also have changed: a baseline settling
@@ -697,15 +719,15 @@ def bench_separable(material: Material, effect: Effects, others: Effects, sensor
     differences of relative ``step``): a linear one overstates what is left where the
     others move far (generator seed 10 bag 53: a Voigt-spring stiffening of k 0.40 keeps
     0.92 x the noise linearly, 0.29 once c2 moves by 14 %)."""
-    readable = replace(sensor, noise=0.0, resolution=0.0, marker_noise=0.0)
+    raw = Sensor("raw", noise=0.0, floor=False, marker_noise=0.0)
     force_std = math.sqrt(layout.tactile_rows * layout.tactile_cols) * sensor.noise \
         * layout.width / layout.tactile_cols * layout.thickness
     n_force = sample_times(layout.rate_tactile, profile.knots[3]).size
 
     def readings(m: Material, e: Effects) -> np.ndarray:
-        data = synthesize(m, e, readable, seed, profile, layout)
+        data = synthesize(m, e, raw, seed, profile, layout)
         markers = data.markers - data.markers.mean(axis=0)
-        return np.concatenate([_total_force(data.images, layout) / force_std,
+        return np.concatenate([_total_force(expected_reading(data.images, sensor), layout) / force_std,
                                markers.ravel() / sensor.marker_noise])
 
     bases = ("E", "c1", "c2", "gamma")
