@@ -418,6 +418,21 @@ class Data:
     pushes: tuple[Push, ...] = ()   # what each push met (simulate's)
 
 
+def cell_readings(pressure: np.ndarray, sensor: Sensor, rng: np.random.Generator) -> np.ndarray:
+    """What cells at ``pressure`` (Pa) read: the chain up to saturation (noise, floor, dead
+    band, quantisation, saturation); the faulty cell and the unit come after it."""
+    p = np.array(pressure, dtype=float)
+    if sensor.noise > 0:
+        p += sensor.noise * rng.standard_normal(p.shape)
+    if sensor.floor:
+        p = np.maximum(p, 0.0)
+    if sensor.dead_band > 0:
+        p = np.where(p < sensor.dead_band, 0.0, p)
+    if sensor.resolution > 0:
+        p = np.round(p / sensor.resolution) * sensor.resolution
+    return np.minimum(p, sensor.saturation)
+
+
 def synthesize(material: Material = Material(), effects: Effects = Effects(), sensor: Sensor | str = "default_like",
                seed: int = 0, profile: Profile = Profile(), layout: Layout = Layout(),
                fresh_material: Material | None = None) -> Data:
@@ -462,15 +477,7 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         cells = p.reshape(len(tac_t), -1)
         lagged = np.column_stack([lsim(lag, cells[:, j], tac_t)[1] for j in range(cells.shape[1])])
         p = (1.0 - share) * p + share * lagged.reshape(p.shape)
-    if sensor.noise > 0:
-        p += sensor.noise * tac_rng.standard_normal(shape)
-    if sensor.floor:
-        p = np.maximum(p, 0.0)
-    if sensor.dead_band > 0:
-        p = np.where(p < sensor.dead_band, 0.0, p)
-    if sensor.resolution > 0:
-        p = np.round(p / sensor.resolution) * sensor.resolution
-    p = np.minimum(p, sensor.saturation)
+    p = cell_readings(p, sensor, tac_rng)
     if sensor.clipped_cell is not None:
         r, c, top = sensor.clipped_cell
         p[:, r, c] = np.minimum(p[:, r, c], top)

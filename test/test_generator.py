@@ -345,3 +345,19 @@ def test_a_bag_of_several_pushes(tmp_path: Path) -> None:
         assert push["start"] < push["contact"] or push["index"] == 0
         assert push["phases"]["pull"][0] == push["contact"] and push["phases"]["release"][0] == push["release"]
     assert "pause" in truth["pushes"][1]["phases"] and "pause" not in truth["pushes"][2]["phases"]
+
+
+@pytest.mark.parametrize("name", ["default_like", "no_dead_band", "clipped", "quantised"])
+def test_the_expected_reading_is_the_mean_of_the_sensors_own_readings(name):
+    """``expected_reading`` (the bench's separable size reads through it) against the mean
+    of 200 000 readings the generator's own chain (``cell_readings``) makes (noise, floor, dead band,
+    quantisation, saturation) at pressures from idle to past saturation: within 1 Pa
+    (the sample mean's std is 0.22 Pa at 100 Pa noise; quantisation by 10-50 Pa under
+    100 Pa of noise averages out to well under that)."""
+    sensor = g.SENSORS[name]
+    rng = np.random.default_rng(7)
+    for p in (0.0, 9.9, 250.0, 300.0, 1000.0, 3950.0, 4100.0):
+        mean = g.cell_readings(np.full(200_000, p), sensor, rng).mean()
+        assert float(g.expected_reading(np.array([p]), sensor)[0]) == pytest.approx(mean, abs=1.0), p
+    # Far above the dead band and under saturation a cell reads its pressure on average.
+    assert float(g.expected_reading(np.array([2000.0]), sensor)[0]) == pytest.approx(2000.0, abs=1e-6)
