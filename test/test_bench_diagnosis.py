@@ -292,7 +292,7 @@ def test_runs_of_one_bench_merge_into_one_table_and_others_are_refused(tmp_path)
         diagnosis.run(merge=f"{a},{a}")
 
 
-def test_merged_runs_are_scored_by_the_separable_size_the_generator_gives_afterwards(tmp_path):
+def test_merged_runs_are_scored_by_the_separable_size_the_generator_gives_afterwards(tmp_path, capsys):
     """``--merge ... --generator``: rows made before the separable size existed get it from
     the generator's ``bench_separable_sizes`` (each bag drawn again from its seed and
     index), and the thresholds and the accuracy above them are reported by it too. Here a
@@ -311,6 +311,8 @@ def test_merged_runs_are_scored_by_the_separable_size_the_generator_gives_afterw
     result = diagnosis.merged([path], 0.95, separable)
     assert calls == [(0, 1.0, True), (1, 1.0, True), (2, 1.0, True)]
     assert [h["size_separable"] for h in result["bags"][2]["hidden"]] == [0.3, 25.0]
+    # Each bag filled is said as it goes (a real generator takes tens of seconds a bag).
+    assert "bag 5:2 (3/3): separable sizes sensor_drift 0.3, adhesion 25" in capsys.readouterr().err
     assert (result["above"]["bags"], result["above"]["exact"]) == (3, 2)   # readable: the pair is above
     assert result["thresholds_separable"]["sensor_drift"]["threshold"] == 0.9
     assert (result["above_separable"]["bags"], result["above_separable"]["exact"]) == (2, 2)

@@ -640,7 +640,14 @@ def merged(paths: list[Path], target: float | None = None,
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
     rows = [_rescored({"seed": r["seed"], **row}) for r in runs for row in r["bags"]]
     if separable is not None:
-        rows = [_with_separable(row, separable, first["noise_scale"], bool(first.get("quick"))) for row in rows]
+        filled = []
+        for k, row in enumerate(rows):   # tens of seconds a bag with effects: said as it goes
+            filled.append(_with_separable(row, separable, first["noise_scale"], bool(first.get("quick"))))
+            if filled[-1] is not row:
+                print(f"{_bag_name(row)} ({k + 1}/{len(rows)}): separable sizes "
+                      + ", ".join(f"{h['effect']} {h['size_separable']:.3g}" for h in filled[-1]["hidden"]),
+                      file=sys.stderr, flush=True)
+        rows = filled
     target = default_target(first["noise_scale"]) if target is None else target
     return {
         **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
