@@ -32,12 +32,14 @@ few percent, or a drift below zero, can be large by ``size`` and still unreadabl
 A source may also give ``size_separable`` for each hidden effect (``hidden`` items; or
 afterwards through a function ``bench_separable_sizes(rng, index, noise_scale, quick)``
 for runs made without it, ``--merge ... --generator``): the part of its footprint the
-rest of the truth cannot take up, its change of the noise-free total force and markers
-beside the other hidden effects less the best linear compensation by the base's
-parameters and theirs, on the same scale. A settling drift beside an adhesion can change
-the force by 1.9 x the noise and leave 0.28 x that no other parameter could also make
-(generator seed 17 bag 26): a threshold read off single-effect bags does not carry over
-to it by ``size_live``. Thresholds and accuracy above them are then reported by it too.
+rest of the truth cannot take up, its change of the expected readings (the noisy
+sensor's mean reading: a small drift on idle floored cells shows by half) and markers
+beside the other hidden effects, less the best compensation by the base's parameters
+and theirs (the source's own model refitted without it), on the same scale. A settling
+drift beside an adhesion can change the force by 1.9 x the noise and leave 0.27 x that
+no other parameter could also make (generator seed 17 bag 26): a threshold read off
+single-effect bags does not carry over to it by ``size_live``. Thresholds and accuracy
+above them are then reported by it too.
 
 Two sources exist: the package's simulator (:func:`simulator_bag`, the default) and any
 file given by ``--generator PATH`` that defines ``bench_bag`` (:func:`load_source`;
