@@ -804,10 +804,10 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
                 **sizes, "params_file": str(out_dir.with_name(out_dir.name + ".params.yaml")),
                 "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name}}
     drawn = _bench_hidden(rng, index, material, profile, layout)
-    separable = _separable_sizes(material, drawn, sensor, seed, profile, layout)
+    # No separable size here (tens of seconds a bag): the bench asks bench_separable_sizes.
     hidden = [{"effect": str(family), "form": form, "params": values,
-               **bench_sizes(material, Effects(**fields), sensor, seed, profile, layout), "size_separable": size}
-              for (family, form, fields, values), size in zip(drawn, separable)]
+               **bench_sizes(material, Effects(**fields), sensor, seed, profile, layout)}
+              for family, form, fields, values in drawn]
     effects = Effects(**{k: v for _, _, fields, _ in drawn for k, v in fields.items()})
     generate(out_dir, material=material, effects=effects, sensor=sensor, seed=seed, profile=profile, layout=layout)
     return {"hidden": hidden, **bench_sizes(material, effects, sensor, seed, profile, layout),
@@ -820,8 +820,8 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
 def bench_separable_sizes(rng: np.random.Generator, index: int, noise_scale: float = 1.0,
                           quick: bool = False) -> list[float]:
     """Each hidden effect's ``size_separable`` of bench bag ``index`` drawn from ``rng``
-    (``bench_bag``'s draws, nothing written): a bench run before the size existed is
-    scored by it afterwards (``rheo bench diagnosis --merge ... --generator``)."""
+    (``bench_bag``'s draws, nothing written): the bench asks it of each bag it made, and of
+    the bags of runs merged that lack it (``rheo bench diagnosis --merge ... --generator``)."""
     material, profile, _, sensor, layout, seed = _bench_draw(rng, noise_scale, quick)
     return _separable_sizes(material, _bench_hidden(rng, index, material, profile, layout),
                             sensor, seed, profile, layout)

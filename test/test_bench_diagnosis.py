@@ -51,6 +51,8 @@ def test_two_quick_generator_bags_score_a_clean_bag_and_a_named_adhesion(tmp_pat
     assert [(h["effect"], h["form"]) for h in bags[1]["hidden"]] == [("adhesion", "fading")]
     assert [b["outcome"] for b in bags] == ["exact", "exact"], [b["evidence"] for b in bags]
     assert bags[1]["forms"] == {"adhesion": "fading"}
+    # The generator's separable size, asked by the bench of each bag it made with effects.
+    assert 0 < bags[1]["hidden"][0]["size_separable"] < 10 * bags[1]["hidden"][0]["size_live"]
     assert result["clean_bags"] == 1 and result["false_claims_on_clean"] == 0
     assert result["clean_fit_within"] == 1
     assert result["by_hidden"][1]["exact"] == 1 and result["failed"] == 0

@@ -589,12 +589,15 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     if outside and generator is None:
         raise ValueError("--outside: the package's simulator has only the catalogue's effects; give --generator")
     name, source = load_source(generator)
+    separable = separable_source(generator) if generator else None
     target = default_target(noise_scale) if target is None else target
     rows = []
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="rheo-bench-diagnosis-") as tmp:
         for i in range(replicates):
             row = run_bag(source, i, np.random.default_rng((seed, i)), Path(tmp), noise_scale, quick, outside)
+            if separable is not None:
+                row = _with_separable(row, separable, noise_scale, quick, seed)
             rows.append(row)
             print(f"bag {i} ({i + 1}/{replicates}): hidden {_hidden_text(row)}, size {row['size']:.3g} "
                   f"(readable {row['size_live']:.3g}), named {'+'.join(row['named']) or 'none'}: {row['outcome']}, "
@@ -644,7 +647,7 @@ def merged(paths: list[Path], target: float | None = None,
     if separable is not None:
         filled = []
         for k, row in enumerate(rows):   # tens of seconds a bag with effects: said as it goes
-            filled.append(_with_separable(row, separable, first["noise_scale"], bool(first.get("quick"))))
+            filled.append(_with_separable(row, separable, first["noise_scale"], bool(first.get("quick")), row["seed"]))
             if filled[-1] is not row:
                 print(f"{_bag_name(row)} ({k + 1}/{len(rows)}): separable sizes "
                       + ", ".join(f"{h['effect']} {h['size_separable']:.3g}" for h in filled[-1]["hidden"]),
@@ -660,12 +663,12 @@ def merged(paths: list[Path], target: float | None = None,
 
 
 def _with_separable(row: dict[str, Any], separable: Callable[..., list[float]], noise_scale: float,
-                    quick: bool) -> dict[str, Any]:
+                    quick: bool, seed: int) -> dict[str, Any]:
     """``row`` with each hidden effect's ``size_separable`` (from ``separable``, its bag
     drawn again from ``default_rng((seed, index))``) where it lacks one."""
     if not row["hidden"] or all("size_separable" in h for h in row["hidden"]):
         return row
-    sizes = separable(np.random.default_rng((row["seed"], row["index"])), row["index"], noise_scale, quick)
+    sizes = separable(np.random.default_rng((seed, row["index"])), row["index"], noise_scale, quick)
     if len(sizes) != len(row["hidden"]):
         raise ValueError(f"{_bag_name(row)}: {SEPARABLE} gave {len(sizes)} sizes for {len(row['hidden'])} hidden effects")
     return {**row, "hidden": [{**h, "size_separable": float(size)} for h, size in zip(row["hidden"], sizes)]}
