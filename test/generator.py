@@ -709,6 +709,10 @@ def bench_sizes(material: Material, effects: Effects, sensor: Sensor, seed: int,
     return out
 
 
+# How far (in log) the separable size's refit may move each compensating parameter.
+LOG_MOVE = 3.0
+
+
 def bench_separable(material: Material, effect: Effects, others: Effects, sensor: Sensor, seed: int,
                     profile: Profile, layout: Layout, step: float = 1e-3) -> float:
     """The part of ``effect``'s footprint the rest of the truth cannot take up: its change
@@ -763,10 +767,13 @@ def bench_separable(material: Material, effect: Effects, others: Effects, sensor
         except ValueError:   # a trial out of the model's range (a Poisson ratio over 1/2)
             return np.full(target.size, 1e6)
 
+    # Each factor within e^-3..e^3: a trial sending an arm's time towards zero made the
+    # integrator's steps follow it down (several GB, minutes). least_squares accepts only
+    # steps that lower the cost, so its answer is never worse than the linear start.
     start = np.log1p(np.clip(linear, -0.9, 10.0))
-    fit = least_squares(left, start, diff_step=1e-4, ftol=1e-4, xtol=1e-6, max_nfev=100)
-    best = min((left(start), fit.fun), key=lambda r: float(r @ r))
-    return float(np.sqrt(np.sum(best ** 2) / n_force))
+    fit = least_squares(left, start, bounds=(-LOG_MOVE, LOG_MOVE), diff_step=1e-4, ftol=1e-4, xtol=1e-6,
+                        max_nfev=100)
+    return float(np.sqrt(np.sum(fit.fun ** 2) / n_force))
 
 
 def _flattened(value: Any) -> list[float]:

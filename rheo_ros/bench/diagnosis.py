@@ -54,10 +54,14 @@ gamma uniform 0.2..0.45; depth uniform 5..12 mm, keep 15..40 s, release 20..40 s
 1e-5..3e-5 m (around the defaults 100 Pa and 2e-5 m), each times ``noise_scale``;
 geometry ``plane_fe`` (80 %) or ``uniaxial`` (20 %). Every form but ``voigt_exponential``
 (the FE simulator's material is linear) and the per-segment drifts (a parameters file
-sets one number per field). Its sizes come from the identification's
+sets one number per field). A drift's offset is log-uniform 1e-5..0.3 N a segment, its
+settling amplitude +-1e-5..0.3 N and its rate +-3e-7..3e-3 N/s (``SIMULATOR_DRAWS``).
+Its sizes come from the identification's
 forward model (``QuasiStaticFE.predict``, 0.04 s) with the true parameters, with and
 without the effects, within 0.1 % of the simulator's own noise-free run (checked on one
-bag of each effect) at a fraction of its cost.
+bag of each effect) at a fraction of its cost; its separable sizes likewise
+(``separable_size``: the forward model refitted, the sensor's mean reading by
+``expected_reading``), a fraction of a second a bag.
 
 **Scoring** (:func:`score`). Each bag is analysed as ``rheo analyze`` does (``analyze``,
 every candidate). Its outcome is ``failed`` (could not be made, or the analysis broke),
@@ -107,21 +111,29 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import ndtr
 
 from rheo_ros.app.analyze import analyze
 from rheo_ros.config.setup import ParamsError, Setup, check_params
 from rheo_ros.diagnosis.decision import Verdict
+from rheo_ros.experiment import sample_times
 from rheo_ros.io.bag import write_run
 from rheo_ros.io.errors import BagError
-from rheo_ros.models.effects import Effect, PerSegmentEffect, effect_class, effect_forms
+from rheo_ros.models.effects import Effect, Model, PerSegmentEffect, effect_class, effect_forms
 from rheo_ros.record import RecordError
 from rheo_ros.rig.simulator import simulate_run
+from rheo_ros.sensors import TactileArray
 
 # A source of bags: (rng, index, out_dir, noise_scale, quick) -> truth (module docstring).
 BagSource = Callable[[np.random.Generator, int, Path, float, bool], dict[str, Any]]
 PROTOCOL = "bench_bag"          # the function a --generator file defines
 SEPARABLE = "bench_separable_sizes"   # and may define: each hidden effect's separable size
 SIMULATOR = "rheo_ros simulator"
+# The simulator's draws (``draw_bag``), kept in each of its runs: a merge draws a bag
+# again (its separable size) only where the run drew it the same way. 2: drifts from
+# 1e-5 N a node (stop 56; 1: from 3e-3 N, no "draws" in the JSON).
+SIMULATOR_DRAWS = 2
 FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
 OUTCOMES = ("exact", "missed", "extra", "unexplained", "undecided", "refused", "failed")
 OUTSIDE_OUTCOMES = ("unexplained", "missed", "wrong", "undecided", "refused", "failed")
@@ -139,6 +151,9 @@ FIT_SAMPLING_SIGMAS = 2.0
 # Uniform ranges (s) of the keep and of the release: full runs, and quick ones for tests.
 KEEP, RELEASE = (15.0, 40.0), (20.0, 40.0)
 QUICK_KEEP, QUICK_RELEASE = (15.0, 18.0), (20.0, 24.0)
+# How far (in log) the separable size's refit may move each compensating parameter: a
+# trial sending an arm's time towards zero costs the generator's integrator minutes.
+SEPARABLE_LOG_MOVE = 3.0
 
 
 def log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -182,12 +197,15 @@ def draw_effect(rng: np.random.Generator, family: str, form: str, E: float, keep
     if family == "strain_stiffening":
         return {"coefficient": log_uniform(rng, 0.02, 1.5 if form == "power_law" else 6.0)}
     if family == "sensor_drift":
+        # Down to a hundredth of the total force's noise (7.2 mN at the defaults) over the
+        # nodes: drawn from 3 mN a node up (draws 1), every drift was 10 x the noise or more
+        # and no threshold could be read off them.
         sign = 1.0 if rng.random() < 0.5 else -1.0
-        offset = float(rng.uniform(0.0, 0.3))
+        offset = log_uniform(rng, 1e-5, 0.3)
         if form == "settling":
-            return {"offset": offset, "amplitude": sign * log_uniform(rng, 0.003, 0.3),
+            return {"offset": offset, "amplitude": sign * log_uniform(rng, 1e-5, 0.3),
                     "time": log_uniform(rng, 3.0, 60.0)}
-        return {"offset": offset, "rate": sign * log_uniform(rng, 1e-5, 3e-3)}
+        return {"offset": offset, "rate": sign * log_uniform(rng, 3e-7, 3e-3)}
     raise KeyError(family)
 
 
@@ -253,6 +271,64 @@ def effect_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray,
     return out
 
 
+def expected_reading(tactile: TactileArray, force: np.ndarray) -> np.ndarray:
+    """(T, nodes) N: the mean segment reading of the noisy sensor at segment forces
+    ``force`` (T, nodes) N, spread evenly over each segment's cells as the simulator
+    spreads them: per cell E[min(x 1(x >= threshold), saturation)] for x its pressure
+    plus Gaussian noise (closed form), times its cells. A drift of a tenth of the noise on
+    an idle cell under a 300 Pa band moves this mean where a noise-free reading stays at
+    zero. The quantisation is left out: at a step of a tenth of the noise its mean bias is
+    under 1e-3 of the step."""
+    cells = tactile.cells_per_segment
+    p = np.asarray(force, float) / (cells * tactile.cell_area)
+    s, low, high = tactile.noise, tactile.threshold, tactile.saturation
+    if not s > 0.0:
+        cell = np.where(p >= low, np.minimum(p, high), 0.0)
+    else:
+        z_low, z_high = (low - p) / s, (high - p) / s
+        inside = ndtr(z_high) - ndtr(z_low)
+        density = np.exp(-0.5 * z_low**2) - (np.exp(-0.5 * z_high**2) if np.isfinite(high) else 0.0)
+        clipped = high * ndtr(-z_high) if np.isfinite(high) else 0.0
+        cell = p * inside + s * density / np.sqrt(2.0 * np.pi) + clipped
+    return cell * cells * tactile.cell_area
+
+
+def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, effect: Effect) -> float:
+    """``effect``'s ``size_separable`` in a simulator bag (module docstring), as the
+    generator's: its change of the expected total reading (``expected_reading``, over the
+    total force's noise) and of the markers (means off, over the camera's noise) beside
+    ``setup``'s other effects, less the best compensation by the base's parameters and
+    the others' (the forward model refitted without it: ``least_squares`` on each
+    parameter's log, within e^-3..e^3 of the truth; a zero stays zero), the RMS over the
+    force readings."""
+    model, forward, profile, tactile = setup.model(), setup.forward_model(), setup.profile, setup.tactile
+    force_std = np.sqrt(tactile.rows * tactile.cols) * tactile.noise * tactile.cell_area
+    marker_std = setup.camera.noise
+
+    def readings(m: Model, gamma: float) -> np.ndarray:
+        p = forward.predict(m, gamma, profile, force_t, marker_t)
+        markers = p.displacement - p.displacement.mean(axis=0)
+        return np.concatenate([expected_reading(tactile, p.force).sum(axis=1) / force_std,
+                               markers.ravel() / marker_std])
+
+    target = readings(model, setup.gamma)
+    without = replace(model, effects=tuple(e for e in model.effects if e != effect))
+    truth = {**without.parameters, "gamma": setup.gamma}
+    names = [k for k, v in truth.items() if np.isfinite(v) and v != 0.0]
+
+    def left(logs: np.ndarray) -> np.ndarray:
+        values = {**truth, **{k: truth[k] * float(np.exp(x)) for k, x in zip(names, logs)}}
+        try:
+            r = readings(without.with_parameters(values), values["gamma"]) - target
+        except ValueError:   # a trial out of the model's range (a Poisson ratio over 1/2)
+            return np.full(target.size, 1e6)
+        return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
+
+    fit = least_squares(left, np.zeros(len(names)), bounds=(-SEPARABLE_LOG_MOVE, SEPARABLE_LOG_MOVE),
+                        diff_step=1e-4, ftol=1e-4, xtol=1e-6, max_nfev=100)
+    return float(np.sqrt(np.sum(fit.fun**2) / len(force_t)))
+
+
 def simulator_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
                   quick: bool = False) -> dict[str, Any]:
     """The package's simulator as a bench source (:data:`BagSource`): draw, simulate and
@@ -262,7 +338,7 @@ def simulator_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_sca
     setup = Setup(check_params(params, f"bag {index}"))
     run = simulate_run(setup, seed)
     write_run(run, {**setup.params, "simulator.seed": seed}, out_dir)
-    for h, effect in zip(hidden, setup.effects()):
+    for h, effect in zip(hidden, setup.model().effects):
         h |= effect_size(setup, run.tactile_t, run.marker_t, (effect,))
     info = {k: v for k, v in params.items() if not k.startswith(("effects.", "simulator."))}
     return {"hidden": hidden, **effect_size(setup, run.tactile_t, run.marker_t), "params_file": None,
@@ -290,9 +366,23 @@ def load_source(path: str | Path | None) -> tuple[str, BagSource]:
     return str(getattr(module, "GENERATOR_ID", file)), source
 
 
-def separable_source(path: str | Path) -> Callable[..., list[float]] | None:
-    """The :data:`SEPARABLE` function of the generator file at ``path``, or None where it
-    defines none."""
+def simulator_separable_sizes(rng: np.random.Generator, index: int, noise_scale: float = 1.0,
+                              quick: bool = False) -> list[float]:
+    """The simulator's :data:`SEPARABLE` function: each hidden effect's
+    ``separable_size`` in bag ``index`` drawn from ``rng`` (``draw_bag``; nothing
+    simulated: the forward model at the bag's sample times)."""
+    _, params, _ = draw_bag(rng, index, noise_scale, quick)
+    setup = Setup(check_params(params, f"bag {index}"))
+    force_t = sample_times(setup.profile.t_end, setup.params["rates.tactile"])
+    marker_t = sample_times(setup.profile.t_end, setup.params["rates.markers"])
+    return [separable_size(setup, force_t, marker_t, effect) for effect in setup.model().effects]
+
+
+def separable_source(path: str | Path | None) -> Callable[..., list[float]] | None:
+    """The :data:`SEPARABLE` function of the generator file at ``path`` (None: the
+    package's simulator's), or None where it defines none."""
+    if path is None:
+        return simulator_separable_sizes
     found = getattr(_source_module(Path(path)), SEPARABLE, None)
     return found if callable(found) else None
 
@@ -589,7 +679,7 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     if outside and generator is None:
         raise ValueError("--outside: the package's simulator has only the catalogue's effects; give --generator")
     name, source = load_source(generator)
-    separable = separable_source(generator) if generator else None
+    separable = separable_source(generator)
     target = default_target(noise_scale) if target is None else target
     rows = []
     t_start = time.perf_counter()
@@ -605,7 +695,7 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
                   + (f" ({row['message']})" if row["message"] else ""), file=sys.stderr, flush=True)
     result = {
         "source": name, "generator": generator, "replicates": replicates, "seed": seed, "quick": quick,
-        "outside_catalogue": outside,
+        "outside_catalogue": outside, **({"draws": SIMULATOR_DRAWS} if generator is None else {}),
         "noise_scale": noise_scale, **score(rows, target), **_times(rows, time.perf_counter() - t_start),
         "bags": rows,
     }
@@ -625,7 +715,8 @@ def merged(paths: list[Path], target: float | None = None,
     the noise, the records' length and the kind of bags (``MERGED_AS_ONE``), and no two
     may hold the same bags (one seed twice). ``separable``: the source's
     :data:`SEPARABLE` function, which gives each bag's hidden effects the separable size
-    a run made before it existed lacks (the bag drawn again, nothing analysed).
+    a run made before it existed lacks (the bag drawn again, nothing analysed); the
+    simulator's runs get the simulator's without asking.
 
     Raises:
         ValueError: names the file and what differs, or the seed met twice."""
@@ -644,9 +735,19 @@ def merged(paths: list[Path], target: float | None = None,
             seeds[seed] = path
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
     rows = [_rescored({"seed": r["seed"], **row}) for r in runs for row in r["bags"]]
+    redrawn = {s for r in runs for s in np.atleast_1d(r["seed"]).tolist()}
+    if separable is None and first.get("source") == SIMULATOR:
+        separable = simulator_separable_sizes
+        redrawn = {s for r in runs if r.get("draws", 1) == SIMULATOR_DRAWS for s in np.atleast_1d(r["seed"]).tolist()}
+        if len(redrawn) < len(seeds):
+            print(f"--merge: seeds {', '.join(str(s) for s in seeds if s not in redrawn)} were drawn by the simulator's "
+                  f"draws before {SIMULATOR_DRAWS}: their bags keep the separable sizes they have", file=sys.stderr)
     if separable is not None:
         filled = []
         for k, row in enumerate(rows):   # tens of seconds a bag with effects: said as it goes
+            if row["seed"] not in redrawn:
+                filled.append(row)
+                continue
             filled.append(_with_separable(row, separable, first["noise_scale"], bool(first.get("quick")), row["seed"]))
             if filled[-1] is not row:
                 print(f"{_bag_name(row)} ({k + 1}/{len(rows)}): separable sizes "
@@ -656,6 +757,8 @@ def merged(paths: list[Path], target: float | None = None,
     target = default_target(first["noise_scale"]) if target is None else target
     return {
         **{key: first.get(key) for key in MERGED_AS_ONE}, "generator": first.get("generator"),
+        **({"draws": first["draws"]} if "draws" in first and all(r.get("draws") == first["draws"] for r in runs)
+           else {}),
         "replicates": len(rows), "seed": list(seeds), "runs": [str(p) for p in paths],
         **score(rows, target), **_times(rows, float(sum(r["total_seconds"] for r in runs))),
         "bags": rows,
