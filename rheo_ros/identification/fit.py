@@ -180,9 +180,10 @@ class WholeRecordProblem:
 
     def residuals(self, params: dict[str, float]) -> np.ndarray:
         p = self.predict(params)
-        rf = ((p.force - self._force) / self.force_std)[self._live]
-        rm = p.displacement - self._disp
-        rm = (rm - rm.mean(axis=0)) / self.marker_std
+        with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
+            rf = ((p.force - self._force) / self.force_std)[self._live]
+            rm = p.displacement - self._disp
+            rm = (rm - rm.mean(axis=0)) / self.marker_std
         return self._assemble(params, p, rf, rm)
 
     def solver_residuals(self, params: dict[str, float]) -> np.ndarray:
@@ -197,9 +198,10 @@ class WholeRecordProblem:
             return self.residuals(params)
         span, inside, outside = reduced
         p = self.predict(params)
-        rf = ((p.force - self._force) / self.force_std)[self._live]
-        depth = p.depth - p.depth.mean()
-        rm = (np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std
+        with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
+            rf = ((p.force - self._force) / self.force_std)[self._live]
+            depth = p.depth - p.depth.mean()
+            rm = (np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std
         return self._assemble(params, p, rf, np.append(rm.ravel(), outside / self.marker_std))
 
     def full_jacobian(self, jac: np.ndarray) -> np.ndarray:
@@ -219,8 +221,9 @@ class WholeRecordProblem:
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
         parts = [rf.ravel(), rm.ravel(), prior]
         if self.ceiling is not None:
-            excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._windows)
-            parts.append((excess / self.force_std)[self._bounded])
+            with np.errstate(over="ignore", invalid="ignore"):
+                excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._windows)
+                parts.append((excess / self.force_std)[self._bounded])
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
