@@ -154,6 +154,7 @@ QUICK_KEEP, QUICK_RELEASE = (15.0, 18.0), (20.0, 24.0)
 # How far (in log) the separable size's refit may move each compensating parameter: a
 # trial sending an arm's time towards zero costs the generator's integrator minutes.
 SEPARABLE_LOG_MOVE = 3.0
+GAMMA_MAX = 0.4999   # the separable size's refit keeps the Poisson ratio under 1/2
 
 
 def log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -275,12 +276,13 @@ def expected_reading(tactile: TactileArray, force: np.ndarray) -> np.ndarray:
     """(T, nodes) N: the mean segment reading of the noisy sensor at segment forces
     ``force`` (T, nodes) N, spread evenly over each segment's cells as the simulator
     spreads them: per cell E[min(x 1(x >= threshold), saturation)] for x its pressure
-    plus Gaussian noise (closed form), times its cells. A drift of a tenth of the noise on
-    an idle cell under a 300 Pa band moves this mean where a noise-free reading stays at
-    zero. The quantisation is left out: at a step of a tenth of the noise its mean bias is
-    under 1e-3 of the step."""
+    plus Gaussian noise (closed form), times its cells; 0 on a segment with no cells. A
+    drift of a tenth of the noise on an idle cell under a 300 Pa band moves this mean
+    where a noise-free reading stays at zero. The quantisation is left out: at a step of a
+    tenth of the noise its mean bias is under 1e-3 of the step."""
     cells = tactile.cells_per_segment
-    p = np.asarray(force, float) / (cells * tactile.cell_area)
+    area = cells * tactile.cell_area
+    p = np.divide(np.asarray(force, float), area, out=np.zeros(np.shape(force)), where=area > 0)
     s, low, high = tactile.noise, tactile.threshold, tactile.saturation
     if not s > 0.0:
         cell = np.where(p >= low, np.minimum(p, high), 0.0)
@@ -290,17 +292,18 @@ def expected_reading(tactile: TactileArray, force: np.ndarray) -> np.ndarray:
         density = np.exp(-0.5 * z_low**2) - (np.exp(-0.5 * z_high**2) if np.isfinite(high) else 0.0)
         clipped = high * ndtr(-z_high) if np.isfinite(high) else 0.0
         cell = p * inside + s * density / np.sqrt(2.0 * np.pi) + clipped
-    return cell * cells * tactile.cell_area
+    return cell * area
 
 
-def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, effect: Effect) -> float:
-    """``effect``'s ``size_separable`` in a simulator bag (module docstring), as the
-    generator's: its change of the expected total reading (``expected_reading``, over the
-    total force's noise) and of the markers (means off, over the camera's noise) beside
-    ``setup``'s other effects, less the best compensation by the base's parameters and
-    the others' (the forward model refitted without it: ``least_squares`` on each
-    parameter's log, within e^-3..e^3 of the truth; a zero stays zero), the RMS over the
-    force readings."""
+def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, index: int) -> float:
+    """The ``size_separable`` of ``setup``'s effect ``index`` (of ``setup.model().effects``)
+    in a simulator bag (module docstring), as the generator's: its change of the expected
+    total reading (``expected_reading``, over the total force's noise) and of the markers
+    (means off, over the camera's noise) beside the other effects, less the best
+    compensation by the base's parameters and the others' (the forward model refitted
+    without it by ``least_squares``: each positive parameter times e^x, a signed one times
+    1 + x, x within +-``SEPARABLE_LOG_MOVE``, the Poisson ratio under 1/2; a zero stays
+    zero), the RMS over the force readings."""
     model, forward, profile, tactile = setup.model(), setup.forward_model(), setup.profile, setup.tactile
     force_std = np.sqrt(tactile.rows * tactile.cols) * tactile.noise * tactile.cell_area
     marker_std = setup.camera.noise
@@ -312,20 +315,24 @@ def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, effe
                                markers.ravel() / marker_std])
 
     target = readings(model, setup.gamma)
-    without = replace(model, effects=tuple(e for e in model.effects if e != effect))
+    without = replace(model, effects=model.effects[:index] + model.effects[index + 1:])
     truth = {**without.parameters, "gamma": setup.gamma}
+    signed = {f"{e.id}.{n}" for e in without.effects for n in e.signed}
     names = [k for k, v in truth.items() if np.isfinite(v) and v != 0.0]
+    high = [min(SEPARABLE_LOG_MOVE, float(np.log(GAMMA_MAX / truth[k]))) if k == "gamma" else SEPARABLE_LOG_MOVE
+            for k in names]
 
-    def left(logs: np.ndarray) -> np.ndarray:
-        values = {**truth, **{k: truth[k] * float(np.exp(x)) for k, x in zip(names, logs)}}
+    def left(x: np.ndarray) -> np.ndarray:
+        values = {**truth, **{k: truth[k] * (1.0 + float(v) if k in signed else float(np.exp(v)))
+                              for k, v in zip(names, x)}}
         try:
             r = readings(without.with_parameters(values), values["gamma"]) - target
-        except ValueError:   # a trial out of the model's range (a Poisson ratio over 1/2)
+        except ValueError:   # a trial out of the model's range: no fit there
             return np.full(target.size, 1e6)
         return np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
 
-    fit = least_squares(left, np.zeros(len(names)), bounds=(-SEPARABLE_LOG_MOVE, SEPARABLE_LOG_MOVE),
-                        diff_step=1e-4, ftol=1e-4, xtol=1e-6, max_nfev=100)
+    fit = least_squares(left, np.zeros(len(names)), bounds=(-SEPARABLE_LOG_MOVE, high), diff_step=1e-4,
+                        ftol=1e-4, xtol=1e-6, max_nfev=100)
     return float(np.sqrt(np.sum(fit.fun**2) / len(force_t)))
 
 
@@ -375,7 +382,7 @@ def simulator_separable_sizes(rng: np.random.Generator, index: int, noise_scale:
     setup = Setup(check_params(params, f"bag {index}"))
     force_t = sample_times(setup.profile.t_end, setup.params["rates.tactile"])
     marker_t = sample_times(setup.profile.t_end, setup.params["rates.markers"])
-    return [separable_size(setup, force_t, marker_t, effect) for effect in setup.model().effects]
+    return [separable_size(setup, force_t, marker_t, i) for i in range(len(setup.model().effects))]
 
 
 def separable_source(path: str | Path | None) -> Callable[..., list[float]] | None:
@@ -735,13 +742,17 @@ def merged(paths: list[Path], target: float | None = None,
             seeds[seed] = path
     # A bag is named by its run's seed and its index (``_bag_name``); a merged run's keep theirs.
     rows = [_rescored({"seed": r["seed"], **row}) for r in runs for row in r["bags"]]
-    redrawn = {s for r in runs for s in np.atleast_1d(r["seed"]).tolist()}
-    if separable is None and first.get("source") == SIMULATOR:
+    redrawn = set(seeds)
+    if first.get("source") == SIMULATOR:
+        if separable not in (None, simulator_separable_sizes):
+            raise ValueError(f"--merge: {paths[0]}: the package's simulator's runs; their separable sizes are the "
+                             "simulator's (leave out --generator)")
         separable = simulator_separable_sizes
         redrawn = {s for r in runs if r.get("draws", 1) == SIMULATOR_DRAWS for s in np.atleast_1d(r["seed"]).tolist()}
         if len(redrawn) < len(seeds):
-            print(f"--merge: seeds {', '.join(str(s) for s in seeds if s not in redrawn)} were drawn by the simulator's "
-                  f"draws before {SIMULATOR_DRAWS}: their bags keep the separable sizes they have", file=sys.stderr)
+            print(f"--merge: the simulator drew the bags of seed(s) {', '.join(str(s) for s in seeds if s not in redrawn)} "
+                  f"before its draws {SIMULATOR_DRAWS}: they cannot be drawn again for their separable sizes; where "
+                  "a bag lacks them, the scores by the separable size are left out", file=sys.stderr)
     if separable is not None:
         filled = []
         for k, row in enumerate(rows):   # tens of seconds a bag with effects: said as it goes
