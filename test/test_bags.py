@@ -119,12 +119,17 @@ def test_table_i_bags_whole_record_fit_gives_the_truth(name):
     """Noise-free markers (float64 positions: their second differences show 3e-17 m of
     rounding) once weighed the markers 1e16 x the force, and E, c1, c2 came out 39 % high
     together (the markers do not see their scale). Measured: within 4.1e-5 of the truth
-    (the simulator's inertia and time steps); tolerance 1e-4."""
+    (the simulator's inertia and time steps); tolerance 1e-4. And judged within the
+    model's floor on every signal: the quasi-static limit's own (the simulator meets the
+    stage's constraint at 1000 rad/s: its markers 8e-8 m off the quasi-static shape) is part
+    of a noise-free record's floor; against the rest alone they read 4e8 x it. Measured:
+    markers 1.0007, each segment 0.056; at most 1.1 asserted (``diagnosis`` FIT_LIMIT)."""
     import rheo_ros
 
     fit = rheo_ros.analyze(BAGS / name, discover_effects=False, workers=1).to_json()["models"][0]
     for key, truth in {"E": 2.0, "c1": 8.0, "c2": 40.0}.items():
         assert fit["params"][key] == pytest.approx(truth, rel=1e-4), key
+    assert max(fit["fit_to_noise"].values()) <= 1.1, fit["fit_to_noise"]
 
 
 def test_uniaxial_simulator_output_matches_exact_model_response():

@@ -317,7 +317,7 @@ def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, inde
     target = readings(model, setup.gamma)
     without = replace(model, effects=model.effects[:index] + model.effects[index + 1:])
     truth = {**without.parameters, "gamma": setup.gamma}
-    signed = {f"{e.id}.{n}" for e in without.effects for n in e.signed}
+    signed = set(without.signed_parameters)
     names = [k for k, v in truth.items() if np.isfinite(v) and v != 0.0]
     high = [min(SEPARABLE_LOG_MOVE, float(np.log(GAMMA_MAX / truth[k]))) if k == "gamma" else SEPARABLE_LOG_MOVE
             for k in names]

@@ -24,7 +24,7 @@ from rheo_ros.config.tuning import EstimatorConfig, SegmenterConfig
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import Boundary, Mesh
-from rheo_ros.fe.quasistatic import QuasiStaticFE
+from rheo_ros.fe.quasistatic import Dynamics, QuasiStaticFE
 from rheo_ros.models.effects import Effect, Model, effect_class
 from rheo_ros.models.elements import Element, three_element
 from rheo_ros.record import Record
@@ -218,16 +218,19 @@ class Setup:
 
         One per geometry in a process, shared by every analysis, fit and node there: what
         it caches (solved shapes, the implied-force table, the finer meshes' solves) are
-        functions of the geometry and the ratio alone, and cost up to a second each."""
+        functions of the geometry and the ratio alone, and cost up to a second each. Its
+        ``dynamics`` (``material.density``, ``simulator.omega``) give the floor of a
+        record the data show noise-free (``QuasiStaticFE.dynamic_predict``)."""
         refine = self.params["mesh.refine"]
         edges = self.segment_edges(refine)
         m = self.mesh
+        dynamics = Dynamics(density=self.params["material.density"], omega=self.params["simulator.omega"])
         key = (m.geometry, m.width, m.height, m.thickness, m.rows, m.cols, m.boundary, refine,
-               None if edges is None else tuple(edges.tolist()))
+               None if edges is None else tuple(edges.tolist()), dynamics)
         if key not in _FORWARD_MODELS:
             if len(_FORWARD_MODELS) >= FORWARD_MODELS_KEPT:
                 del _FORWARD_MODELS[next(iter(_FORWARD_MODELS))]
-            _FORWARD_MODELS[key] = QuasiStaticFE(m, refine, edges)
+            _FORWARD_MODELS[key] = QuasiStaticFE(m, refine, edges, dynamics=dynamics)
         return _FORWARD_MODELS[key]
 
     @cached_property

@@ -34,6 +34,7 @@ from numpy.polynomial import chebyshev
 from scipy.sparse.linalg import splu
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh
 from rheo_ros.models.effects import Model, Release
 from rheo_ros.models.elements import Element
@@ -70,6 +71,16 @@ def elastic_shape(mesh: Mesh, gamma: float, order: int = 1) -> tuple[list[np.nda
     bottom = mesh.y_dofs(mesh.bottom)
     reactions = [sum(math.comb(k, j) * (K[j] @ u[k - j]) for j in range(k + 1))[bottom] for k in range(order + 1)]
     return u, reactions
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """What the quasi-static limit leaves out, as the simulator's dynamic FE has it: the
+    specimen's ``density`` (kg/m^3) and the stage contact's stabilisation frequency
+    ``omega`` (rad/s): inertia, and a stage constraint met within about v / omega."""
+
+    density: float
+    omega: float
 
 
 @dataclass(frozen=True)
@@ -113,10 +124,11 @@ class QuasiStaticFE:
     DIFFERENCE_GRID = 0.01
 
     def __init__(self, mesh: Mesh, refine: int = 1, segment_edges: np.ndarray | None = None,
-                 coarser: QuasiStaticFE | None = None) -> None:
+                 coarser: QuasiStaticFE | None = None, dynamics: Dynamics | None = None) -> None:
         self.mesh, self.refine = mesh, refine
         self.segment_edges = segment_edges
         self.coarser = coarser
+        self.dynamics = dynamics
         self.fe_mesh = mesh.refined(refine)
         if segment_edges is None and refine != 1:
             raise ValueError("a refined mesh needs the tactile segments' edges")
@@ -286,6 +298,27 @@ class QuasiStaticFE:
             self._responses.pop(next(iter(self._responses)), None)
         self._responses[key] = r
         return r
+
+    def dynamic_predict(self, model: Model, gamma: float, profile: StageProfile,
+                        force_t: np.ndarray, marker_t: np.ndarray) -> Prediction | None:
+        """``predict`` with inertia and the stage's compliance (``dynamics``): the
+        simulator's dynamic FE on this mesh, stepped at the samples' times as the simulator
+        steps. None without ``dynamics``, or where the dynamic FE has no such model (a
+        nonlinear Voigt spring). Its difference from ``predict`` is what the quasi-static
+        limit leaves: far under any camera's noise at a real density, the whole misfit of
+        a noise-free simulated record (``fit._quasi_static_floor``)."""
+        if self.dynamics is None or model.voigt_spring is not None:
+            return None
+        fe = DynamicFE(self.mesh, model.rheology(), gamma, density=self.dynamics.density,
+                       omega=self.dynamics.omega, refine=self.refine, segment_edges=self.segment_edges)
+        t = np.union1d(force_t, marker_t)
+        fi, mi = np.searchsorted(t, force_t), np.searchsorted(t, marker_t)
+        markers_at = None if model.memory else np.isin(np.arange(t.size), mi)
+        res = fe.simulate(profile, t, markers_at)
+        force = model.felt_force(t, res.bottom_force, res.strain, res.contact)[fi]
+        seen = (model.measured_markers(t, res.displacement)[mi] if model.memory
+                else model.measured_markers(t[mi], res.displacement[mi]))
+        return Prediction(force, seen)
 
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,
