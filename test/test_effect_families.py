@@ -257,14 +257,17 @@ def test_a_drift_of_each_segment_its_own_is_named_per_segment(analysed):
 def test_a_form_chosen_before_the_next_effect_is_chosen_again_beside_it(tmp_path):
     """Generator bench bag 17 of seed 10 (clipped sensor; one Maxwell arm of 4.5 kPa, 2.5 s,
     and a Voigt spring stiffening exponentially, k 1.08): on the base model two arms beat
-    one, and with the stiffening found next c2 runs off to its bound (the second arm takes
-    up the flow). Chosen again beside the stiffening (``discover.revisit_forms``), one arm
-    fits better (measured: BIC lower by 22.4) and nothing is at a bound: E, c1, c2, the
-    arm and k within 3 std of the generator's truth (measured: c1 2.4 std, the arm's viscosity
-    2.2, the others within 1.2)."""
+    one, and with the stiffening found next the two-arm fit degenerates: c2 runs off to its
+    bound (the second arm takes up the flow; an Intel machine at stop 51), or the second arm
+    is left undetermined (this AMD EPYC machine, stop 56: its stiffness 2.8 kPa +- 62 kPa;
+    the path of a degenerate fit follows the BLAS's last bits). Chosen again beside the
+    stiffening (``discover.revisit_forms``), one arm fits better (measured: BIC lower by
+    22.4, 21 on the EPYC) and nothing is at a bound: E, c1, c2, the arm and k within 3 std of
+    the generator's truth (measured: c1 2.4-2.6 std, the arm's viscosity 2.1-2.2, the others
+    within 1.2)."""
     from generator import bench_bag
 
-    from rheo_ros.diagnosis.decision import collapsed, sample_interval
+    from rheo_ros.diagnosis.decision import collapsed, sample_interval, undetermined
     from rheo_ros.diagnosis.discover import revisit_forms
     from rheo_ros.diagnosis.fits import add_effect, polish
 
@@ -274,7 +277,7 @@ def test_a_form_chosen_before_the_next_effect_is_chosen_again_beside_it(tmp_path
     fit = base
     for effect, form in (("relaxation_branch", "two_arms"), ("strain_stiffening", "voigt_exponential")):
         fit = polish(record, forward, add_effect(record, forward, fit, effect, noise, form), noise)
-    assert collapsed(fit, base, sample_interval(record)) == ("c2",)
+    assert collapsed(fit, base, sample_interval(record)) == ("c2",) or undetermined(fit, "relaxation_branch")
 
     revised, changes = revisit_forms(record, forward, fit, base, noise)
     assert revised.forms == {"relaxation_branch": "one_arm", "strain_stiffening": "voigt_exponential"}, changes
@@ -441,18 +444,37 @@ def test_a_first_fit_that_leaves_its_effect_unbounded_is_fitted_again_from_the_s
     first start the drift fits within the noise with its time, offset and amplitude
     unbounded (the data could not decide); a fit that leaves its effect undetermined is no
     answer (``discover._sound``), so the second start is fitted too, and from it the drift
-    is bounded and named (measured: BIC lower by 78), the model adequate."""
+    lowers the BIC by 78 (measured on two machines). A time of 48 s in a 40 s record is at
+    the edge of what it shows: its amplitude bounded, the drift named and the model
+    adequate on an Intel machine (stop 52), the time left open on this AMD EPYC (stop 56),
+    and the verdict "the data cannot decide", naming the time and the longer record that
+    would pin it. Either is asserted, never another effect or "adequate" without it."""
     from generator import bench_bag
 
+    from rheo_ros.diagnosis import fits
+
     truth = bench_bag(np.random.default_rng((17, 1)), 1, tmp_path / "bag", 1.0, True)
-    report = analyze(tmp_path / "bag", params_file=truth["params_file"], candidates=["sensor_drift"],
-                     workers=1).to_json()
+    fit_model, starts = fits.fit_model, []
+
+    def counted(*args, **kwargs):
+        starts.extend(e.id for e in args[2] if e.id == "sensor_drift")
+        return fit_model(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fits, "fit_model", counted)
+        report = analyze(tmp_path / "bag", params_file=truth["params_file"], candidates=["sensor_drift"],
+                         workers=1).to_json()
+    assert len(starts) >= 2, starts   # the drift's first fit was no answer: the second start fitted
     diagnosis = report["diagnosis"]
-    assert diagnosis["explained"] and diagnosis["adequate"], diagnosis["evidence"]
-    assert diagnosis["missing_effects"] == ["sensor_drift"], diagnosis["evidence"]
     model = report["models"][-1]
-    assert math.isfinite(model["std"]["sensor_drift.amplitude"]), model["std"]
-    assert report["models"][0]["bic"] - model["bic"] > 10.0
+    drift = next(c for c in diagnosis["steps"][0]["candidates"] if c["effect"] == "sensor_drift")
+    assert drift["delta_bic"] < -10.0, drift
+    if diagnosis["missing_effects"]:
+        assert diagnosis["missing_effects"] == ["sensor_drift"] and diagnosis["adequate"], diagnosis["evidence"]
+        assert diagnosis["explained"] and math.isfinite(model["std"]["sensor_drift.amplitude"]), model["std"]
+    else:
+        assert diagnosis["undecided"] == ["sensor_drift"], diagnosis["evidence"]
+        assert "sensor_drift.time" in diagnosis["evidence"] and "longer record" in diagnosis["evidence"]
 
 
 def test_an_idle_effect_on_data_the_model_fits_is_fitted_from_one_start_only(monkeypatch):
