@@ -582,47 +582,42 @@ def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], a
     dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([r[1] - r[0], r[2] - r[1]]),
                                    rcond=None)[0]
     std = np.abs((dx[:, 0] + dx[:, 1] / (1.0 - DISCRETISATION_RATIO)) * slope)
-    # The residuals' move to the continuum that no parameter change takes up (the rest is
-    # the parameters' shift above), unweighted: live force readings (row-major) first,
-    # then the markers.
+    # The residuals' move to the continuum (the rest is the parameters' shift above).
     move = (r[1] - r[0]) + (r[2] - r[1]) / (1.0 - DISCRETISATION_RATIO)
-    jac = sol.jac[:, bounded]
-    move = move - jac @ np.linalg.lstsq(jac, move, rcond=None)[0]
-    node = np.nonzero(problem.live_mask)[1]
-    nodes = problem.live_mask.shape[1]
-    force_move = move[:node.size] * np.broadcast_to(problem.force_std, (nodes,))[node]
-    # One level for every segment: how the projection spreads the move over the segments
-    # follows the fit's weights, not the mesh (a segment weighted heavily takes its move
-    # into the parameters and would claim a floor of almost nothing).
-    force_floor = np.full(nodes, float(np.sqrt(np.mean(force_move**2))) if force_move.size else 0.0)
-    marker_move = move[node.size:node.size + problem.marker_count] * problem.marker_std
-    marker_floor = float(np.sqrt(np.mean(marker_move**2))) if marker_move.size else 0.0
+    force_floor, marker_floor = _floor_of(problem, move, sol, loose)
     return std, force_floor, marker_floor
 
 
-def _quasi_static_floor(problem: WholeRecordProblem, params: dict[str, float], at_fit: np.ndarray, sol,
-                        loose: np.ndarray) -> np.ndarray | None:
-    """(nodes + 1,): what the quasi-static limit leaves that no parameter takes up, per
-    signal (each node's force in N, then the markers' m; RMS over the readings): the
-    dynamic FE's prediction at the fit (``WholeRecordProblem.dynamic_predict``) less
-    the quasi-static one, the parameters' share projected off as in
-    ``_discretisation_std``. None where the forward model has no dynamics. Asked only of
-    a signal the data show noise-free: a simulation stepping the stage's constraint at
-    1000 rad/s leaves its markers 8e-8 m off the quasi-static shape (the paper's Table I
-    bags), which against no noise read as a misfit of 4e8 x."""
-    dynamic = problem.dynamic_predict(params)
-    if dynamic is None:
-        return None
-    move = problem.residuals(params, dynamic) - at_fit
+def _floor_of(problem: WholeRecordProblem, move: np.ndarray, sol, loose: np.ndarray) -> tuple[np.ndarray, float]:
+    """The part of a move of the weighted residuals (``move``: live force readings
+    row-major, then the markers) that no parameter change takes up, unweighted, as a
+    floor: (nodes,) N and the markers' m, RMS over the readings. One level for every
+    segment: how the projection spreads the move over the segments follows the fit's
+    weights, not the model (a segment weighted heavily takes its move into the parameters
+    and would claim a floor of almost nothing)."""
     jac = sol.jac[:, ~loose]
     move = move - jac @ np.linalg.lstsq(jac, move, rcond=None)[0]
     node = np.nonzero(problem.live_mask)[1]
     nodes = problem.live_mask.shape[1]
     force_move = move[:node.size] * np.broadcast_to(problem.force_std, (nodes,))[node]
-    per_node = np.array([np.sqrt(np.mean(force_move[node == j] ** 2)) if np.any(node == j) else 0.0
-                         for j in range(nodes)])
+    force_floor = np.full(nodes, float(np.sqrt(np.mean(force_move**2))) if force_move.size else 0.0)
     marker_move = move[node.size:node.size + problem.marker_count] * problem.marker_std
-    return np.append(per_node, np.sqrt(np.mean(marker_move**2)) if marker_move.size else 0.0)
+    return force_floor, float(np.sqrt(np.mean(marker_move**2))) if marker_move.size else 0.0
+
+
+def _quasi_static_floor(problem: WholeRecordProblem, params: dict[str, float], at_fit: np.ndarray, sol,
+                        loose: np.ndarray) -> np.ndarray | None:
+    """(nodes + 1,): what the quasi-static limit leaves that no parameter takes up
+    (``_floor_of``): the dynamic FE's prediction at the fit
+    (``WholeRecordProblem.dynamic_predict``) less the quasi-static one. None where the
+    forward model has no dynamics. Asked only of a signal the data show noise-free: a
+    simulation stepping the stage's constraint at 1000 rad/s leaves its markers 8e-8 m off
+    the quasi-static shape (the paper's Table I bags), which against no noise read as a
+    misfit of 4e8 x."""
+    dynamic = problem.dynamic_predict(params)
+    if dynamic is None:
+        return None
+    return np.append(*_floor_of(problem, problem.residuals(params, dynamic) - at_fit, sol, loose))
 
 
 def _reweighted(problem: WholeRecordProblem, residuals, unpack, pmap: ParameterMap, max_iterations: int | None,
