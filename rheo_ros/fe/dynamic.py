@@ -33,6 +33,7 @@ from scipy.sparse.linalg import splu
 
 from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.mesh import Mesh
+from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import Element
 from rheo_ros.models.response import StateSpace
 
@@ -436,6 +437,21 @@ class DynamicFE:
             i += 1
         strain = scalars[:, -2] / self.mesh.height
         return FEResult(t, profile.depth_at(t), markers.reshape(t.size, -1, 2), scalars[:, :-2], held, strain)
+
+    def observe(self, model: Model, profile: StageProfile, t: np.ndarray, force_t: np.ndarray,
+                marker_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the sensors see of ``profile`` run with ``model``'s effects, stepped at the
+        sorted times ``t`` (holding ``force_t`` and ``marker_t``): the felt segment forces at
+        ``force_t`` and the markers' displacements seen at ``marker_t``. An effect with
+        memory sees the markers at every step (as a streaming simulator does); otherwise
+        the FE reads them only where the camera does (most of its readouts)."""
+        fi, mi = np.searchsorted(t, force_t), np.searchsorted(t, marker_t)
+        markers_at = None if model.memory else np.isin(np.arange(t.size), mi)
+        res = self.simulate(profile, t, markers_at)
+        felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)[fi]
+        seen = (model.measured_markers(t, res.displacement)[mi] if model.memory
+                else model.measured_markers(t[mi], res.displacement[mi]))
+        return felt, seen
 
     def _steady_steps(self, grid: np.ndarray, depths: np.ndarray, jump: np.ndarray) -> np.ndarray:
         """For each step (onto ``grid[i]``), how many steps from it on share its length and

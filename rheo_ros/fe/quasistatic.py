@@ -311,14 +311,7 @@ class QuasiStaticFE:
             return None
         fe = DynamicFE(self.mesh, model.rheology(), gamma, density=self.dynamics.density,
                        omega=self.dynamics.omega, refine=self.refine, segment_edges=self.segment_edges)
-        t = np.union1d(force_t, marker_t)
-        fi, mi = np.searchsorted(t, force_t), np.searchsorted(t, marker_t)
-        markers_at = None if model.memory else np.isin(np.arange(t.size), mi)
-        res = fe.simulate(profile, t, markers_at)
-        force = model.felt_force(t, res.bottom_force, res.strain, res.contact)[fi]
-        seen = (model.measured_markers(t, res.displacement)[mi] if model.memory
-                else model.measured_markers(t[mi], res.displacement[mi]))
-        return Prediction(force, seen)
+        return Prediction(*fe.observe(model, profile, np.union1d(force_t, marker_t), force_t, marker_t))
 
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,

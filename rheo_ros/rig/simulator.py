@@ -206,17 +206,8 @@ def simulate_clean(setup: Setup) -> CleanRun:
     # Steps on the stage's grid too, as the streaming ``Simulator`` does: the same steps,
     # the same numbers (the step size moves the FE's results by ~1e-8).
     t = np.union1d(stage_t, np.union1d(tactile_t, marker_t))
-    ti, mi = np.searchsorted(t, tactile_t), np.searchsorted(t, marker_t)
-    # An effect with memory sees the markers at every step, as the streaming one does;
-    # otherwise the FE reads them only where the camera does (most of its readouts).
-    markers_at = None if model.memory else np.zeros(t.size, bool)
-    if markers_at is not None:
-        markers_at[mi] = True
-    res = fe.simulate(profile, t, markers_at)
-    felt = model.felt_force(t, res.bottom_force, res.strain, res.contact)
-    seen = (model.measured_markers(t, res.displacement)[mi] if model.memory
-            else model.measured_markers(t[mi], res.displacement[mi]))
-    return CleanRun(stage_t, depth, velocity, tactile_t, felt[ti], marker_t, mesh.nodes[None] + seen)
+    felt, seen = fe.observe(model, profile, t, tactile_t, marker_t)
+    return CleanRun(stage_t, depth, velocity, tactile_t, felt, marker_t, mesh.nodes[None] + seen)
 
 
 def observe(setup: Setup, clean: CleanRun, seed: int = 0) -> Run:
