@@ -86,6 +86,47 @@ def test_readings_below_zero_are_a_linear_cell():
     assert s.source["markers.noise"] == "parameters" and s.marker_noise == 2e-5
 
 
+def test_a_coarse_lattice_under_a_small_load_is_read_from_few_values():
+    """50 Pa counts of noise clipped at zero under a load of at most 1.5 kPa: 30-odd
+    distinct readings, each met hundreds of times, are a lattice (under ``MIN_LATTICE``
+    values they had been "not shown", the parameters' 10 Pa used, and the clipped noise's
+    first count, 50 Pa, read as a dead band); a handful of frames is not."""
+    rng = np.random.default_rng(4)
+    array = TactileArray(rows=6, cols=32, nodes=5)
+    load = np.linspace(0.0, 1500.0, 2000)[:, None, None] * np.ones((1, 6, 32))
+    images = (50.0 * np.round(np.maximum(load + 100.0 * rng.standard_normal(load.shape), 0.0) / 50.0))
+    readout = TactileReadout()
+    readout.add(images.astype(np.float32))
+    assert readout.distinct.size < 50 and readout.resolution == 50.0
+    s = read_sensor(array, readout, array.nodal_forces(images), float("nan"), 2e-5)
+    assert s.tactile.threshold == 0.0 and s.tactile.resolution == 50.0
+    few = TactileReadout()
+    few.add(images[-3:].astype(np.float32))
+    assert few.resolution is None
+
+
+@pytest.mark.parametrize("step", [0.0, 10.0, 50.0, 200.0])
+def test_the_mean_reading_of_cells_with_no_dead_band_is_their_expected_value(step):
+    """``DeadBand.expected`` against 100 000 frames of 24 cells at 100 Pa of noise clipped at
+    zero, rounded to ``step``: mean and std within 4 standard errors (and 2 % for the std)
+    from tension to well above zero."""
+    rng = np.random.default_rng(5)
+    cells, noise = 24, 100.0
+    band = TactileArray(rows=6, cols=32, threshold=0.0, resolution=step, noise=noise, width=0.080,
+                        depth=0.0125).dead_band
+    area = TactileArray().cell_area
+    segment_std = np.full(5, noise * np.sqrt(cells) * area)
+    band = replace(band, cells=np.full(5, cells))
+    for pressure in (-100.0, 0.0, 13.0, 60.0, 300.0, 700.0):
+        x = np.maximum(pressure + noise * rng.standard_normal((100_000, cells)), 0.0)
+        if step:
+            x = step * np.round(x / step)
+        read = x.sum(axis=1) * area
+        mean, std = band.expected(np.array([pressure * cells * area]), np.array([0]), segment_std)
+        assert abs(mean[0] - read.mean()) < 4 * read.std() / np.sqrt(read.size), (pressure, mean[0], read.mean())
+        assert std[0] == pytest.approx(read.std(), rel=0.02 if pressure < 600 or step < 200 else 0.04), pressure
+
+
 def test_the_readout_is_the_same_frame_by_frame_as_whole(sensors):
     """The node adds a block of frames at a time, a bag all at once: the same facts,
     with a cell dying half way (its run and the load its column read meanwhile)."""
