@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property, lru_cache
 
 import numpy as np
-from scipy.special import erfc, gammaincinv, ndtr
+from scipy.special import erfc, gammaincinv
 
 MIN_DIFFERENCES = 10   # fewer second differences than this: the noise is not known
 # E[max(n, 0)] of a zero-mean Gaussian n over its std (1 / sqrt(2 pi)): the most a cell's
@@ -39,9 +39,6 @@ NOISE_DOUBT = 1.25
 # Frames of the unloaded array (before contact) that measure the excess in its stead
 # (``DeadBand.unloaded``), and the one-sided confidence of its bound (a Gaussian's 3 stds).
 MIN_UNLOADED = 20
-# Noise stds above zero past which a cell with no dead band never reads its clipping (the
-# Gaussian's tail there is 1e-9): its mean reading is its pressure (``DeadBand.expected``).
-CLEAR_OF_ZERO = 6.0
 UNLOADED_CONFIDENCE = 0.99865
 
 
@@ -188,51 +185,6 @@ class DeadBand:
         not by the whole band; with no dead band (the noise clipped at zero) by about
         nothing, so the readings bound the force from both sides."""
         return self._bias(force_std)[1]
-
-    @property
-    def clips_only(self) -> np.ndarray:
-        """(nodes,) segments whose cells have no dead band, their noise clipped at zero: a
-        reading's mean is then a known function of its force at every force
-        (``expected``), whatever the force's spread over the cells (the function is nearly
-        linear where it curves least, so a spread moves it little: 0.2 cell stds of
-        spread move the force it reads by 0.02 cell stds)."""
-        return np.asarray(self.force, float) <= 0.0
-
-    def expected(self, force: np.ndarray, segment: np.ndarray, force_std: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """The mean and the std (N each) of readings of segments ``segment`` at forces
-        ``force`` (N, the same shape), for cells with no dead band (``clips_only``): each
-        cell at its share of the force plus Gaussian noise (its std the segment's
-        ``force_std`` over sqrt(cells)), clipped at zero, in counts of ``quantum``; the
-        cells independent. Per cell, at pressure p and noise s: E = p Phi(p/s) + s phi(p/s)
-        and E[x^2] = (p^2 + s^2) Phi(p/s) + p s phi(p/s) read continuously; in counts of q,
-        E = q sum_k Phi((p - (k - 1/2) q) / s) and E[x^2] = q^2 sum_k (2k - 1) Phi(...) over
-        k >= 1 (a count k reads where the value is past (k - 1/2) q), exact for rounding to
-        the nearest count. Counts finer than a quarter of the noise are read continuously:
-        their rounding biases the mean by at most phi(0) q^2 / (8 s), 0.003 noise stds."""
-        cells = np.asarray(self.cells, float)[segment]
-        s = np.asarray(force_std, float)[segment] / np.sqrt(cells)
-        p = np.asarray(force, float) / cells
-        q = float(self.quantum)
-        safe = np.where(s > 0.0, s, 1.0)
-        # Past CLEAR_OF_ZERO stds no reading clips: the mean is the force, the spread the
-        # noise's and the rounding's (a trial step's huge force asks no huge sum).
-        clear = p > CLEAR_OF_ZERO * safe
-        pc = np.where(clear, CLEAR_OF_ZERO * safe, p)
-        if q > 0.25 * float(np.min(s, initial=np.inf)):
-            k = np.arange(1.0, np.ceil((CLEAR_OF_ZERO + 9.0) * float(np.max(s, initial=0.0)) / q) + 2.0)
-            step = ndtr((pc[..., None] - (k - 0.5) * q) / safe[..., None])
-            mean, square = q * step.sum(axis=-1), q * q * (step * (2 * k - 1)).sum(axis=-1)
-        else:
-            z = pc / safe
-            tail, density = ndtr(z), _normal_pdf(z)
-            mean = pc * tail + s * density
-            square = (pc * pc + s * s) * tail + pc * s * density
-        var = np.maximum(square - mean * mean, 0.0)
-        mean = np.where(clear, p, mean)
-        mean = np.where(s > 0.0, mean, np.maximum(p, 0.0))
-        var = np.where(s > 0.0, var, 0.0)
-        return cells * mean, np.sqrt(cells * var)
 
     def live(self, force: np.ndarray, force_std: np.ndarray) -> np.ndarray:
         """(T, nodes) mask of live readings for segment forces (T, nodes) in N."""

@@ -26,15 +26,7 @@ from scipy.special import chdtrc
 
 from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.fit import (
-    ReadingWindows,
-    bound_excess,
-    bounds,
-    expected_noise,
-    expected_readings,
-    expected_std,
-    steady_readings,
-)
+from rheo_ros.identification.fit import ReadingWindows, bound_excess, bounds, steady_readings
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
@@ -196,20 +188,11 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     live = noise.force_live & steady
     rf = np.where(live, p.force - record.force, np.nan)
     limits = bounds(record, noise.force_std)
-    noisy = live   # readings that carry the noise: live, or counted by their expected value
     if limits["ceiling"] is not None:
-        band, std = record.dead_band, expected_noise(record)
         bounded = ~noise.force_live & steady & (True if noise.force_spikes is None else ~noise.force_spikes)
-        expected = expected_readings(band, record.force, bounded, std)
-        bounded &= ~expected
-        windows = ReadingWindows(band, record.force, bounded, limits["window_std"])
+        windows = ReadingWindows(record.dead_band, record.force, bounded, limits["window_std"])
         excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], windows)
         rf = np.where(bounded & (excess != 0.0), excess, rf)
-        if expected.any():   # as the fit counts them: noise stds, here times the segment's noise
-            at = np.nonzero(expected)
-            mean = band.expected(p.force[at], at[1], std)[0]
-            rf[at] = (mean - record.force[at]) / expected_std(band, record.force, at, std) * std[at[1]]
-            noisy = live | expected
     counted = np.isfinite(rf)
     force_floor = np.broadcast_to(noise.force_floor, noise.force_std.shape)
     stats: list[ResidualStats] = []
@@ -217,9 +200,9 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
         rows = counted[:, j]
         if rows.sum() >= 3 and np.isfinite(noise.force_std[j]):
             stats += residual_stats(f"P{j + 1}", record.force_t[rows], rf[rows, j], noise.force_std[j], profile,
-                                    float(force_floor[j]), noisy[rows, j])
-    # The total: readings every segment has (a bound's excess is no reading to sum).
-    every = noisy.all(axis=1) & np.all(np.isfinite(noise.force_std))
+                                    float(force_floor[j]), live[rows, j])
+    # The total: readings every segment has live (a bound's excess is no reading to sum).
+    every = live.all(axis=1) & np.all(np.isfinite(noise.force_std))
     if every.sum() >= 3:
         total_noise = float(np.sqrt(np.sum(noise.force_std**2)))
         # The segments' floors are one model's error: they add up, they do not average.

@@ -11,7 +11,6 @@ from functools import cached_property
 
 import numpy as np
 from scipy.differentiate import jacobian
-from scipy.ndimage import uniform_filter1d
 from scipy.optimize import brentq, least_squares
 from scipy.special import expit, logit
 
@@ -23,7 +22,7 @@ from rheo_ros.identification.noise import Weights, sensor_noise, spikes_note
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import three_element
 from rheo_ros.record import Record, contact_time
-from rheo_ros.sensors import CLEAR_OF_ZERO, DeadBand
+from rheo_ros.sensors import DeadBand
 
 SEARCH_LIMIT = 30.0         # transformed parameters beyond +-30: e^30 times the start, or gamma at its bound
 # The streams' clock offsets against the stage's (s, positive: stamped late). Beyond
@@ -57,11 +56,6 @@ MISFIT_SIGMAS = 5.0
 # Readings under the live threshold averaged into one pair of bounds (``ReadingWindows``): as
 # many as the live rule's window (``noise.LIVE_WINDOW``), half a second at 50 Hz.
 READING_WINDOW = 25
-# Cell stds below zero past which a cell with no dead band reads only its noise's tail
-# (``expected_readings``): its mean reading then depends on how the force spreads over a
-# segment's cells, as under a dead band, and the readings bound the force instead. At half a
-# std a spread of 0.3 stds moves the force read by under 0.03 stds.
-CLIPPED_DEPTH = 0.5
 # Readings of a segment under the band in a long window (five seconds at 50 Hz): a force
 # steady there (a held adhesion) shows in their mean to a tenth of what a short window's
 # margin lets through. Their margin is their own spread, never under this share of the
@@ -133,16 +127,9 @@ class WholeRecordProblem:
                                          self.guard)
         self._force = self.record.force[self._use]
         self._live = (np.ones(self._force.shape, bool) if self.live is None else self.live[self._use])
-        # The readings that bound the model: neither live nor left out; of them, those of cells
-        # with no dead band count by their expected value (``expected_readings``).
+        # The readings that bound the model: neither live nor left out.
         self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
         band = self.record.dead_band
-        self._cell_noise = None if self.window_std is None else expected_noise(self.record)
-        self._expected = expected_readings(band, self._force, self._bounded, self._cell_noise)
-        self._bounded &= ~self._expected
-        self._expected_at = np.nonzero(self._expected)
-        self._expected_std = (None if not self._expected_at[0].size else
-                              expected_std(band, self._force, self._expected_at, self._cell_noise))
         self._windows = (None if self.window_std is None or band is None else
                        ReadingWindows(band, self._force, self._bounded, self.window_std))
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
@@ -177,16 +164,9 @@ class WholeRecordProblem:
 
     @property
     def samples(self) -> int:
-        """Readings the fit rests on: live force readings, those read by their expected
-        value, and marker coordinates (the censored readings only bound the model, they
-        add no count)."""
-        return int(self.live_counts.sum()) + int(self._expected_at[0].size) + self.marker_count
-
-    def measured_rows(self, rows: int) -> np.ndarray:
-        """Which of ``residuals``' ``rows`` rows are readings (live force readings, the
-        markers, the readings counted by their expected value), not priors or bounds."""
-        first = int(self._live.sum()) + self.marker_count
-        return np.r_[0:first, rows - int(self._expected_at[0].size):rows]
+        """Readings the fit rests on: live force readings and marker coordinates (the
+        censored readings only bound the model, they add no count)."""
+        return int(self.live_counts.sum()) + self.marker_count
 
     def _at(self, params: dict[str, float]) -> tuple[Model, bool, tuple[np.ndarray, np.ndarray]]:
         """The model at ``params``, whether it reads every sample, and the times to predict."""
@@ -257,11 +237,6 @@ class WholeRecordProblem:
             with np.errstate(over="ignore", invalid="ignore"):
                 excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._windows)
                 parts.append((excess / self.force_std)[self._bounded])
-        if self._expected_at[0].size:
-            t, j = self._expected_at
-            with np.errstate(over="ignore", invalid="ignore"):
-                mean = self.record.dead_band.expected(p.force[t, j], j, self._cell_noise)[0]
-                parts.append((mean - self._force[t, j]) / self._expected_std)
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
@@ -396,63 +371,6 @@ def bound_excess(force: np.ndarray, readings: np.ndarray, ceiling: np.ndarray, t
     if top is not None:   # a saturated reading: the force was at least the top
         excess = np.where(readings > top, np.minimum(force - top, 0.0), excess)
     return excess
-
-
-def expected_noise(record: Record) -> np.ndarray | None:
-    """(nodes,) N: each segment's noise as the readings counted by their expected value
-    use it (``expected_readings``): from the array's one cell noise (``SensorReading``),
-    pooled over every cell, not each segment's own estimate. A mean reading near zero moves
-    by 0.4 x an error in the noise: a segment's estimate 5 % off (its second differences
-    over a thousand readings) moved a held force of 13 Pa a cell by 3.6 Pa."""
-    band, sensor = record.dead_band, record.sensor
-    if band is None or not (np.isfinite(sensor.tactile.noise) and sensor.tactile.noise > 0.0):
-        return None
-    return sensor.tactile.noise * np.sqrt(np.asarray(band.cells, float)) * sensor.tactile.cell_area
-
-
-def expected_readings(band: DeadBand | None, readings: np.ndarray, bounded: np.ndarray,
-                      force_std: np.ndarray | None) -> np.ndarray:
-    """(T, nodes) the readings under the live threshold that count by their expected value
-    (``DeadBand.expected``): of segments whose cells have no dead band (the noise clipped
-    at zero), whose noise is known, not saturated. Such a reading's mean is a known
-    function of the force whatever its spread over the cells, so a force under the live
-    threshold (a held adhesion of 13 Pa a cell against 100 Pa of noise) counts in full,
-    where a bound (``ReadingWindows``) would have to allow the clipped noise's whole
-    excess. Under a dead band the mean depends on how the force spreads over the cells
-    (a 25 % spread of a drift per cell moved a settling time by 15 std): bounds there. So
-    it does where the readings stand for cells pulled below zero by more than
-    ``CLIPPED_DEPTH`` cell stds (their ``READING_WINDOW`` mean says so): there only the
-    noise's tail reads, as under a dead band (a per-segment drift settling to 2 cell stds
-    below zero, its cells 30 % apart, misfit by 11 sd when counted so)."""
-    if band is None or force_std is None:
-        return np.zeros(readings.shape, bool)
-    std = np.nan_to_num(np.asarray(force_std, float))
-    known = band.clips_only & (std > 0.0)
-    nodes = np.arange(std.size)
-    lowest = band.expected(-CLIPPED_DEPTH * std * np.sqrt(np.asarray(band.cells, float)), nodes, std)[0]
-    level = uniform_filter1d(readings, READING_WINDOW, axis=0, mode="nearest")
-    return bounded & known[None] & (readings <= band.top(std)) & (level >= lowest)
-
-
-def expected_std(band: DeadBand, readings: np.ndarray, at: tuple[np.ndarray, np.ndarray],
-                 force_std: np.ndarray) -> np.ndarray:
-    """The std of each reading at ``at`` (times, segments) that counts by its expected
-    value (``expected_readings``), at the force its neighbours' mean reading stands for:
-    the mean of ``READING_WINDOW`` of its segment's such readings around it, read back
-    through ``DeadBand.expected``. From the data, not the model: a std that moved with the
-    model's force would let the fit lower its residuals by raising their std (a bias
-    toward larger forces no count of readings averages away)."""
-    t, seg = at
-    values = readings[t, seg]
-    std = np.empty_like(values)
-    for j in np.unique(seg):
-        mine = seg == j   # in time order: ``at`` runs by time, then segment
-        level = uniform_filter1d(values[mine], READING_WINDOW, mode="nearest")
-        cell_std = float(force_std[j]) / np.sqrt(float(band.cells[j]))
-        grid = np.linspace(-4.0, CLEAR_OF_ZERO, 401) * cell_std * float(band.cells[j])
-        mean, spread = band.expected(grid, np.full(grid.size, j), force_std)
-        std[mine] = np.interp(level, mean, spread)
-    return np.maximum(std, 1e-12 * np.asarray(force_std, float)[seg])
 
 
 def live_top(record: Record, force_std: np.ndarray) -> np.ndarray | None:
@@ -785,7 +703,7 @@ def fit_record(
         # A parameter no live reading and no marker moves is held by the bounds alone: a
         # hinge barely active at the fit gives it a slope, and a std, that say nothing.
         column = np.linalg.norm(sol.jac, axis=0)
-        measured = np.linalg.norm(sol.jac[problem.measured_rows(sol.jac.shape[0])], axis=0)
+        measured = np.linalg.norm(sol.jac[:problem.samples], axis=0)
         only = np.flatnonzero(~pmap.at_edge(sol.x) & (measured <= 1e-9 * column))
         ranges = [_held_by_bounds(residuals, sol.x, i, cost) for i in only]
         for i in only:
