@@ -105,28 +105,6 @@ def test_a_coarse_lattice_under_a_small_load_is_read_from_few_values():
     assert few.resolution is None
 
 
-@pytest.mark.parametrize("step", [0.0, 10.0, 50.0, 200.0])
-def test_the_mean_reading_of_cells_with_no_dead_band_is_their_expected_value(step):
-    """``DeadBand.expected`` against 100 000 frames of 24 cells at 100 Pa of noise clipped at
-    zero, rounded to ``step``: mean and std within 4 standard errors (and 2 % for the std)
-    from tension to well above zero."""
-    rng = np.random.default_rng(5)
-    cells, noise = 24, 100.0
-    band = TactileArray(rows=6, cols=32, threshold=0.0, resolution=step, noise=noise, width=0.080,
-                        depth=0.0125).dead_band
-    area = TactileArray().cell_area
-    segment_std = np.full(5, noise * np.sqrt(cells) * area)
-    band = replace(band, cells=np.full(5, cells))
-    for pressure in (-100.0, 0.0, 13.0, 60.0, 300.0, 700.0):
-        x = np.maximum(pressure + noise * rng.standard_normal((100_000, cells)), 0.0)
-        if step:
-            x = step * np.round(x / step)
-        read = x.sum(axis=1) * area
-        mean, std = band.expected(np.array([pressure * cells * area]), np.array([0]), segment_std)
-        assert abs(mean[0] - read.mean()) < 4 * read.std() / np.sqrt(read.size), (pressure, mean[0], read.mean())
-        assert std[0] == pytest.approx(read.std(), rel=0.02 if pressure < 600 or step < 200 else 0.04), pressure
-
-
 def test_the_readout_is_the_same_frame_by_frame_as_whole(sensors):
     """The node adds a block of frames at a time, a bag all at once: the same facts,
     with a cell dying half way (its run and the load its column read meanwhile)."""
