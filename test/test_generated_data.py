@@ -112,4 +112,3 @@ def test_segments_saturated_most_of_the_time_take_the_cells_noise(tmp_path):
     for name, tolerance in {"E": 0.01, "c1": 0.01, "c2": 0.1, "gamma": 0.01}.items():
         assert fit[name] == pytest.approx(material[name], rel=tolerance), name
     assert report["sensor"]["tactile"]["saturation"] == 4000.0
-
