@@ -438,9 +438,10 @@ class DynamicFE:
         strain = scalars[:, -2] / self.mesh.height
         return FEResult(t, profile.depth_at(t), markers.reshape(t.size, -1, 2), scalars[:, :-2], held, strain)
 
-    def observe(self, model: Model, profile: StageProfile, t: np.ndarray, force_t: np.ndarray,
-                marker_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """What the sensors see of ``profile`` run with ``model``'s effects, stepped at the
+    def clean_signals(self, model: Model, profile: StageProfile, t: np.ndarray, force_t: np.ndarray,
+                      marker_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What the sensors are fed, before their noise (``rig.simulator.observe`` and the
+        camera's ``observe`` add it), of ``profile`` run with ``model``'s effects, stepped at the
         sorted times ``t`` (holding ``force_t`` and ``marker_t``): the felt segment forces at
         ``force_t`` and the markers' displacements seen at ``marker_t``. An effect with
         memory sees the markers at every step (as a streaming simulator does); otherwise

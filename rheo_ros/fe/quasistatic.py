@@ -311,7 +311,7 @@ class QuasiStaticFE:
             return None
         fe = DynamicFE(self.mesh, model.rheology(), gamma, density=self.dynamics.density,
                        omega=self.dynamics.omega, refine=self.refine, segment_edges=self.segment_edges)
-        return Prediction(*fe.observe(model, profile, np.union1d(force_t, marker_t), force_t, marker_t))
+        return Prediction(*fe.clean_signals(model, profile, np.union1d(force_t, marker_t), force_t, marker_t))
 
     def predict(
         self, model: Model, gamma: float, profile: StageProfile,

@@ -206,7 +206,7 @@ def simulate_clean(setup: Setup) -> CleanRun:
     # Steps on the stage's grid too, as the streaming ``Simulator`` does: the same steps,
     # the same numbers (the step size moves the FE's results by ~1e-8).
     t = np.union1d(stage_t, np.union1d(tactile_t, marker_t))
-    felt, seen = fe.observe(model, profile, t, tactile_t, marker_t)
+    felt, seen = fe.clean_signals(model, profile, t, tactile_t, marker_t)
     return CleanRun(stage_t, depth, velocity, tactile_t, felt, marker_t, mesh.nodes[None] + seen)
 
 
