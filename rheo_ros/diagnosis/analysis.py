@@ -150,7 +150,7 @@ class Analysis:
             "adequate": adequate, "adequate_model": finals.pop() if adequate and len(finals) == 1 else None,
             "explained": None if any(v.explained is None for v in verdicts) else all(v.explained for v in verdicts),
             "closest": list(dict.fromkeys(e for v in verdicts for e in v.closest)), "remaining": None,
-            "degenerate": [], "leftover": [],   # each push's: experiments
+            "degenerate": [], "leftover": [], "shared_times": [],   # each push's: experiments
             "evidence": " ".join(f"Experiment {k}: {m.evidence()}" for k, m in zip(numbers, members)),
             "experiments": list(numbers),
         }
@@ -185,6 +185,7 @@ class Analysis:
         diagnosis["closest"] = list(verdict.closest)
         diagnosis["degenerate"] = list(verdict.degenerate)
         diagnosis["leftover"] = list(verdict.leftover)
+        diagnosis["shared_times"] = list(verdict.shared_times)
         diagnosis["remaining"] = self.what_remains()
         diagnosis["adequate_model"] = self.final.name if verdict.adequate else None
         diagnosis["evidence"] = self.evidence() if self.diagnoses else "not diagnosed (--no-discover)"

@@ -24,6 +24,7 @@ from rheo_ros.diagnosis.decision import (
     leftover,
     phase_excess,
     sample_interval,
+    shared_times,
     undetermined,
 )
 from rheo_ros.diagnosis.evidence import evidence_text
@@ -342,7 +343,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
                 verdict, revisited = retried
         if len(models) > 1:   # effects added: did they leave the base model whole?
             verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], sample_interval(record)),
-                              leftover=leftover(models[-1]))
+                              leftover=leftover(models[-1]), shared_times=shared_times(models[-1]))
         verdicts.append(verdict)
         if verdict.missing_effect is None or len(models) > limit:
             return models, verdicts

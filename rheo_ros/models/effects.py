@@ -36,8 +36,9 @@ A user registers an effect (or another form of one) from their own package with
 time) are parameters to fit, not a list to enumerate. For the model-discovery loop
 (``rheo_ros.diagnosis``) an effect also says where its fit may start (``starts``),
 which phases show it (``shows_in``), which of its parameters may take either sign
-(``signed``; the rest are positive) and what experiment would pin it down
-(``resolving_experiment``).
+(``signed``; the rest are positive), what experiment would pin it down
+(``resolving_experiment``) and its own time constants (``times``: two effects of
+separate causes rarely share one, ``diagnosis.decision.shared_times``).
 """
 
 from __future__ import annotations
@@ -173,6 +174,13 @@ class Effect:
         ``measured_markers`` depends on (0: none; ``math.inf``: all of them)."""
         return 0.0
 
+    @property
+    def times(self) -> dict[str, float]:
+        """The effect's own time constants (s) by what they are ("relaxation time"):
+        the decisions compare them across effects (``diagnosis.decision.shared_times``).
+        Default: none."""
+        return {}
+
 
 _REGISTRY: dict[str, dict[str, type[Effect]]] = {}   # id -> form -> class, the default first
 E = TypeVar("E", bound=type[Effect])
@@ -244,6 +252,10 @@ class RelaxationBranch(Effect):
     def time(self) -> float:
         """The arm's relaxation time (s)."""
         return self.viscosity / self.stiffness
+
+    @property
+    def times(self) -> dict[str, float]:
+        return {"relaxation time": self.time}
 
     @classmethod
     def starts(cls, context: FitContext) -> tuple[Effect, ...]:
@@ -318,6 +330,10 @@ class Adhesion(Effect):
     def describe(self) -> str:
         return f"{100 * self.fraction:.3g} % of the force held after release, fading over {self.time:.3g} s"
 
+    @property
+    def times(self) -> dict[str, float]:
+        return {"fading time": self.time}
+
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         if release is None:
             return force
@@ -364,6 +380,10 @@ class TwoRelaxationArms(RelaxationBranch):
     @property
     def time_2(self) -> float:
         return self.viscosity_2 / self.stiffness_2
+
+    @property
+    def times(self) -> dict[str, float]:
+        return {"first relaxation time": self.time, "second relaxation time": self.time_2}
 
     @classmethod
     def starts(cls, context: FitContext) -> tuple[Effect, ...]:
@@ -430,6 +450,10 @@ class SettlingDrift(Effect):
     def describe(self) -> str:
         return (f"a tactile offset of {self.offset:.3g} N per segment settling by {self.amplitude:.3g} N "
                 f"over {self.time:.3g} s")
+
+    @property
+    def times(self) -> dict[str, float]:
+        return {"settling time": self.time}
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         settled = -np.expm1(-np.maximum(np.asarray(t), 0.0) / self.time)
@@ -551,6 +575,10 @@ class SegmentSettlingDrift(_DriftPerSegment):
     def describe(self) -> str:
         return ("tactile offsets of " + ", ".join(f"{o:.3g}" for o in self.offsets) + " N settling by "
                 + ", ".join(f"{a:.3g}" for a in self.amplitudes) + f" N (P1, P2, ...) over {self.time:.3g} s")
+
+    @property
+    def times(self) -> dict[str, float]:
+        return {"settling time": self.time}
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         settled = -np.expm1(-np.maximum(np.asarray(t), 0.0) / self.time)[:, None]

@@ -130,11 +130,9 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
     last = result.diagnoses[-1]
     verdict = Verdict.of(result.diagnoses)
     if verdict.closest:
-        how = (f"is degenerate ({', '.join(verdict.degenerate)} collapsed)" if verdict.degenerate
-               else "still misfits" + (f" ({', '.join(verdict.leftover)})" if verdict.leftover else ""))
-        return (f"The catalogue does not explain these data: with {', '.join(verdict.closest)}, the closest, "
-                f"{final} {how}; no effect is named missing and the three-element parameters are biased "
-                "by what is missing (see what remains).", False)
+        return (f"The catalogue does not explain these data: {verdict.reason}. {', '.join(verdict.closest)} "
+                f"{'is' if len(verdict.closest) == 1 else 'are'} the closest, not missing; the three-element "
+                "parameters are biased by what is missing (see what remains).", False)
     found = result.missing_effects
     head = ("Missing effects found, in order: " + ", ".join(found) + "." if found
             else "No missing effect found.")
