@@ -441,7 +441,10 @@ def test_parameter_map_edges_and_clips():
     assert pm.slope(-x)[1] == pytest.approx(1.5 * np.exp(-30.0), rel=1e-2, abs=0)     # the upper end alike (1 - sig rounds)
     assert s[2] == 1.0 and s[3] == 0.01 and s[4] == 0.01
     assert pm.at_edge(x).tolist() == [True, True, False, False, False]
-    # Offsets: their edge at 0.95 of the limit, beside it not.
+    # Offsets: clipped at their limit (the residuals stop moving there), their edge at 0.95
+    # of it, beside it not.
+    assert pm.values(np.array([0.0, 0.0, 0.0, 10.0, -4.1]))[3:].tolist() == [F.DELAY_LIMIT, -F.DELAY_LIMIT]
+    assert pm.values(np.array([0.0, 0.0, 0.0, 3.9, -3.9]))[3:].tolist() == pytest.approx([0.039, -0.039])
     assert pm.at_edge(np.array([0.0, 0.0, 0.0, 3.8, -3.8])).tolist() == [False, False, False, True, True]
     edge = 0.99 * F.SEARCH_LIMIT
     assert pm.at_edge(np.array([edge, -edge, 0.0, 0.0, 0.0])).tolist() == [True, True, False, False, False]

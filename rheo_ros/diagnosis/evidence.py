@@ -72,7 +72,7 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
         if loose:
             names = " and ".join(k.split(".", 1)[1] for k in loose)
             verb, them = ("is", "it") if len(loose) == 1 else ("are", "them")
-            parts.append(f"Its {names} {verb} not determined by these data (std above half the value): "
+            parts.append(f"Its {names} {verb} only loosely determined by these data (std above half the value): "
                          f"{cls.resolving_experiment} would pin {them} down.")
         louder = [o for o in tried if o.eligible and o.delta_bic < c.delta_bic]
         if louder:
