@@ -249,18 +249,22 @@ class Verdict:
         explained = bool(last.adequate) and not last.degenerate and not last.leftover and not last.shared_times
         evidence = " ".join(d.evidence for d in diagnoses)
         why = ""
-        if added and not explained:
+        if added and not explained:   # every reason that holds
+            reasons = []
             if last.degenerate:
-                why = f"the fit is degenerate ({', '.join(last.degenerate)} collapsed)"
-            elif last.leftover or not last.adequate:
-                why = (f"with {' and '.join(added)} the model still misfits"
-                       + (f" ({', '.join(last.leftover)})" if last.leftover else ""))
-            else:
-                why = (f"{'; '.join(last.shared_times)} agree within {SHARED_TIME:.0%}: one time spans the "
-                       "phases these effects show in, as one mechanism the catalogue lacks would (a sensor's "
-                       "own lag, for one), not two of separate causes")
+                reasons.append(f"the fit is degenerate ({', '.join(last.degenerate)} collapsed)")
+            if last.leftover or not last.adequate:
+                reasons.append(f"with {' and '.join(added)} the model still misfits"
+                               + (f" ({', '.join(last.leftover)})" if last.leftover else ""))
+            if last.shared_times:
+                reasons.append(f"{'; '.join(last.shared_times)} agree within {SHARED_TIME:.0%}: one time spans the "
+                               "phases these effects show in, as one mechanism the catalogue lacks would (a "
+                               "sensor's own lag, for one), not two of separate causes")
+            why = "; and ".join(reasons)
             evidence += (f" Final verdict: the catalogue does not explain these data: {why}. "
-                         f"{', '.join(added)} is the closest, not the missing effect; the three-element "
+                         + (f"{added[0]} is the closest, not the missing effect" if len(added) == 1 else
+                            f"{' and '.join(added)} are the closest, not the missing effects")
+                         + "; the three-element "
                          "parameters are biased by what is missing (see remaining).")
         return cls(adequate=bool(last.adequate), missing_effects=added if explained else (),
                    undecided=last.undecided, candidates=diagnoses[0].candidates, evidence=evidence,
