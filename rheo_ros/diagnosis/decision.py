@@ -261,15 +261,21 @@ class Verdict:
                                "phases these effects show in, as one mechanism the catalogue lacks would (a "
                                "sensor's own lag, for one), not two of separate causes")
             why = "; and ".join(reasons)
-            evidence += (f" Final verdict: the catalogue does not explain these data: {why}. "
-                         + (f"{added[0]} is the closest, not the missing effect" if len(added) == 1 else
-                            f"{' and '.join(added)} are the closest, not the missing effects")
-                         + "; the three-element "
-                         "parameters are biased by what is missing (see remaining).")
+            evidence += f" Final verdict: {unexplained_text(why, added)} (see remaining)."
         return cls(adequate=bool(last.adequate), missing_effects=added if explained else (),
                    undecided=last.undecided, candidates=diagnoses[0].candidates, evidence=evidence,
                    explained=explained, closest=() if explained else added, degenerate=last.degenerate,
                    leftover=last.leftover, shared_times=last.shared_times, reason=why)
+
+
+def unexplained_text(reason: str, closest: Sequence[str]) -> str:
+    """The verdict when the effects added (``closest``) do not explain the data, for
+    ``reason``: the evidence's final sentence and the report's, without its pointer to what
+    remains."""
+    names = (f"{closest[0]} is the closest, not the missing effect" if len(closest) == 1 else
+             f"{' and '.join(closest)} are the closest, not the missing effects")
+    return (f"the catalogue does not explain these data: {reason}. {names}; the three-element parameters are "
+            "biased by what is missing")
 
 
 def _finite(x: float) -> float | None:

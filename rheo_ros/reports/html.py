@@ -50,7 +50,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from rheo_ros.diagnosis.analysis import Analysis
-from rheo_ros.diagnosis.decision import Verdict
+from rheo_ros.diagnosis.decision import Verdict, unexplained_text
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.diagnosis.remaining import describe as describe_remaining
 from rheo_ros.diagnosis.remaining import shape_curve
@@ -130,9 +130,8 @@ def verdict_text(result: Analysis) -> tuple[str, bool]:
     last = result.diagnoses[-1]
     verdict = Verdict.of(result.diagnoses)
     if verdict.closest:
-        return (f"The catalogue does not explain these data: {verdict.reason}. {', '.join(verdict.closest)} "
-                f"{'is' if len(verdict.closest) == 1 else 'are'} the closest, not missing; the three-element "
-                "parameters are biased by what is missing (see what remains).", False)
+        text = unexplained_text(verdict.reason, verdict.closest)
+        return f"{text[0].upper()}{text[1:]} (see what remains).", False
     found = result.missing_effects
     head = ("Missing effects found, in order: " + ", ".join(found) + "." if found
             else "No missing effect found.")
