@@ -432,8 +432,9 @@ def test_effects_that_share_one_time_are_the_closest_not_missing():
     fading over 0.979 s (generator seed 32 bag 27): two effects of separate causes sharing
     one time to 0.5 % are one mechanism the catalogue lacks. 10 % apart they share it, 12 %
     apart they do not; two arms of one effect are not compared with each other."""
-    def fit(*effects):
-        return SimpleNamespace(model=SimpleNamespace(effects=effects))
+    def fit(*effects, ranges=None):
+        return SimpleNamespace(model=SimpleNamespace(effects=effects),
+                               estimate=SimpleNamespace(statistics=SimpleNamespace(ranges=ranges or {})))
 
     arm = RelaxationBranch(5.59e4, 5.45e4)
     assert decision.shared_times(fit(arm, Adhesion(0.197, 0.979))) == (
@@ -445,6 +446,12 @@ def test_effects_that_share_one_time_are_the_closest_not_missing():
     drift = SettlingDrift(0.0, 0.45, 0.504)
     assert decision.shared_times(fit(Adhesion(0.255, 0.48), drift)) == (
         "adhesion's fading time 0.48 s and sensor_drift's settling time 0.504 s",)
+    # A time only readings under the dead band hold is its range: a 0.46 s lag read as an arm
+    # of 0.463 s and an adhesion fading over 0.378-3.88 s (generator bag 32:5).
+    fast = RelaxationBranch(1.38e5, 6.39e4)
+    assert decision.shared_times(fit(fast, Adhesion(0.284, 1.21), ranges={"adhesion.time": (0.378, 3.88)})) == (
+        "relaxation_branch's relaxation time 0.463 s and adhesion's fading time 0.378-3.88 s",)
+    assert decision.shared_times(fit(fast, Adhesion(0.284, 1.21), ranges={"adhesion.time": (0.52, 3.88)})) == ()
 
     first = Diagnosis("three_element", False, "adhesion", (candidate("adhesion", -30.0),), "step one.", ())
     second = Diagnosis("three_element+adhesion", False, "sensor_drift", (candidate("sensor_drift", -20.0),),

@@ -80,6 +80,28 @@ def test_a_lag_read_as_an_arm_and_an_adhesion_of_its_time_is_not_named(tmp_path)
     assert f"{d['shared_times'][0]} agree within 10%: one time spans the phases" in d["evidence"]
 
 
+def test_a_lag_that_only_readings_under_the_dead_band_show_is_no_held_adhesion(tmp_path):
+    """Generator out-of-catalogue bag 32:9 (quick; a dead-banded array, 2 % of each reading
+    through a 1.19 s lag): after a Maxwell arm of the lag's time, a held adhesion of 0.4 %
+    of the force lowered the BIC by 25.5, held only by the windows of readings under the
+    dead band just after the release (stop 59: named). Those readings fall from 10.7 mN over
+    the release's first second to 0.76 mN over the next four (above the unloaded array's
+    level; 5 sd and a factor 2 are the rule) while a held force would read steady: the held
+    form is contradicted (rule 5), nothing is named, and the evidence says why."""
+    from rheo_ros.bench.diagnosis import load_source
+
+    _, source = load_source(Path(__file__).with_name("generator.py"))
+    truth = source(np.random.default_rng((32, 9)), 9, tmp_path / "bag", 1.0, True, outside=True)
+    assert truth["outside"][0]["effect"] == "sensor_lag"
+    d = analyze(tmp_path / "bag", params_file=truth["params_file"], workers=1).to_json()["diagnosis"]
+    assert (d["missing_effect"], d["missing_effects"]) == (None, [])
+    fades = re.search(r"adhesion \(held form\) lowers BIC by [0-9.e+]+, but the readings after the release fall "
+                      r"from ([0-9.e-]+) N over its first second to ([0-9.e-]+) N over the next four", d["evidence"])
+    assert fades, d["evidence"]
+    first, later = map(float, fades.groups())
+    assert first >= 2.0 * later and first == pytest.approx(0.0107, rel=0.1)
+
+
 def test_what_remains_says_where_the_misfit_sits(lagging):
     """``remaining``: every phase of the push and every segment misfit with the closest
     model; each cell's ratio above 1 (the misfit limit)."""

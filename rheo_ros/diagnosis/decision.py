@@ -25,7 +25,12 @@ on the same ``n`` readings. An effect is named missing only when all of these ho
 3. adding it removes at least ``EXCESS_EXPLAINED`` of that excess, over those phases
    together and in each of them that misfit (its footprint: an effect that fits the
    pull's curve by making the keep worse, or a clean phase misfit, is not that effect);
-4. the data pin its parameters down (``pipeline.is_determined``).
+4. the data pin its parameters down (``pipeline.is_determined``);
+5. where only readings under the dead band hold its parameters (``held_ranges``: the fit
+   sees them as bounds, which cannot tell when in the release they read), their course
+   after the release does not contradict it (``fades_unmodelled``): readings that fall to
+   under half within seconds while the model holds its force steady are a force that
+   fades, not one held (a sensor's lag read as a held adhesion).
 
 When none passes (2)-(3) on a model with effects added, an effect that completes the model
 may be named instead: with it, every phase of force and markers that misfit beyond ``EXCESS_SIGMAS`` (``leftover``)
@@ -76,7 +81,7 @@ from rheo_ros.experiment import PHASES, PUSH_PHASES
 from rheo_ros.identification.fit import misfit_limit
 from rheo_ros.identification.pipeline import is_determined
 from rheo_ros.models.effects import effect_class
-from rheo_ros.record import Record
+from rheo_ros.record import UNLOADED_GUARD, Record, contact_time
 
 BIC_DECISIVE = 10.0
 # An effect's parameter is pinned down when its std is within this share of its value
@@ -98,6 +103,20 @@ EXCESS_EXPLAINED = 0.5
 # 58). Among the kept benches' in-catalogue bags (810, stops 56 and 58) 14 ended with two
 # timed effects; their times were 15 % to 14 x apart.
 SHARED_TIME = 0.1
+# Rule 5 (``fades_unmodelled``): the total force read over the first second after the release
+# and over the four after it (s from the stage letting go, past the boundary guard), above
+# what the unloaded array reads before contact; the
+# readings contradict a model when their level falls by FALL_RATIO or more between the two,
+# by FALL_SIGMAS of the later readings' spread, while the model's force falls by less than
+# MODEL_STEADY. A steady force reads steady under any dead band, clip or lattice: the
+# readings' level is a monotone function of the force, so no threshold or noise enters.
+# Measured on the generator's bags (test/generator.py): in-catalogue adhesions, held or
+# fading over 10-300 s, read 0.58-1.36 between the windows (76 bags with an adhesion
+# hidden, generator x 1); out-of-catalogue sensor lags of 0.3-1.2 s read 3.9-123.
+RELEASE_WINDOWS = (0.1, 1.1, 5.1)
+FALL_RATIO = 2.0
+FALL_SIGMAS = 5.0
+MODEL_STEADY = 1.25
 
 
 @dataclass(frozen=True)
@@ -127,6 +146,8 @@ class Candidate:
         clears: where the current model misfits beyond ``EXCESS_SIGMAS`` (``leftover``)
             when, with the effect, nothing does and the BIC falls decisively, over the whole
             record and where the model misfits (empty: it does not complete the model).
+        contradicted: what in the readings the fit's bounds do not see contradicts it (rule
+            5, ``fades_unmodelled``), in words; empty: nothing.
     """
 
     effect: str
@@ -144,16 +165,18 @@ class Candidate:
     alternatives: tuple[Candidate, ...] = ()
     misfit_delta_bic: float = np.inf
     clears: tuple[str, ...] = ()
+    contradicted: str = ""
 
     @property
     def eligible(self) -> bool:
-        """An effect the data both ask for and pin down."""
-        return self.significant and self.determined
+        """An effect the data both ask for and pin down, and do not contradict."""
+        return self.significant and self.determined and not self.contradicted
 
     @property
     def completes(self) -> bool:
-        """An effect that, pinned down, leaves the model misfitting nowhere (``clears``)."""
-        return bool(self.clears) and self.determined
+        """An effect that, pinned down and not contradicted, leaves the model misfitting
+        nowhere (``clears``)."""
+        return bool(self.clears) and self.determined and not self.contradicted
 
 
 @dataclass(frozen=True)
@@ -295,6 +318,35 @@ def held_ranges(fit: ModelFit) -> dict[str, tuple[float, float]]:
     return dict(stats.ranges) if stats is not None else {}
 
 
+def fades_unmodelled(record: Record, fit: ModelFit, effect_id: str) -> str:
+    """Rule 5: where only readings under the dead band hold ``effect_id``'s parameters in
+    ``fit`` (``held_ranges``), whether the total force read after the release falls to
+    under 1 / ``FALL_RATIO`` between the first second and the next four (by
+    ``FALL_SIGMAS`` of the later readings' spread) while ``fit``'s force stays within
+    ``MODEL_STEADY`` (``RELEASE_WINDOWS``): in words, or empty when it does not (or the
+    release is too short to tell)."""
+    if not any(k.startswith(effect_id + ".") for k in held_ranges(fit)):
+        return ""
+    t = record.force_t - record.profile().t_keep_end
+    start, split, end = RELEASE_WINDOWS
+    first, later = (t >= start) & (t < split), (t >= split) & (t < end)
+    if first.sum() < 10 or later.sum() < 10 or t[-1] < end:
+        return ""
+    read = record.force.sum(axis=1)
+    # Above what the unloaded array reads (a clipped cell's noise reads 0.4 of its std at no force).
+    unloaded = record.force_t < contact_time(record) - UNLOADED_GUARD
+    zero = float(read[unloaded].mean()) if unloaded.sum() >= 10 else 0.0
+    level, settled = float(read[first].mean()) - zero, float(read[later].mean()) - zero
+    spread = float(read[later].std(ddof=1))
+    held, held_later = float(fit.prediction_total[first].mean()), float(fit.prediction_total[later].mean())
+    falls = (level >= FALL_RATIO * settled
+             and level - settled > FALL_SIGMAS * spread * np.sqrt(1.0 / first.sum() + 1.0 / later.sum()))
+    if not falls or held_later <= 0.0 or held > MODEL_STEADY * held_later:
+        return ""
+    return (f"the readings after the release fall from {level:.3g} N over its first second to {settled:.3g} N "
+            f"over the next four, while the model holds {held_later:.3g} N: a force that fades")
+
+
 def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMINED_STD) -> list[str]:
     """The effect's parameters in ``fit`` that the data do not pin down. A positive one
     (fitted on a log scale) needs a finite std within ``relative_limit`` of its value: run
@@ -356,11 +408,28 @@ def shared_times(fit: ModelFit) -> tuple[str, ...]:
     """Each pair of ``fit``'s effects whose own times (``Effect.times``) agree within
     ``SHARED_TIME``, as "adhesion's fading time 0.48 s and sensor_drift's settling time
     0.504 s": one time spanning the phases each shows in is one mechanism, not two, and
-    the catalogue's pair that mimics it is no explanation (module docstring)."""
-    timed = [(e, name, t) for e in fit.model.effects for name, t in e.times.items() if np.isfinite(t) and t > 0]
-    return tuple(f"{a.id}'s {na} {ta:.3g} s and {b.id}'s {nb} {tb:.3g} s"
-                 for i, (a, na, ta) in enumerate(timed) for b, nb, tb in timed[i + 1:]
-                 if a.id != b.id and abs(np.log(ta / tb)) <= SHARED_TIME)
+    the catalogue's pair that mimics it is no explanation (module docstring). A time only
+    readings under the dead band hold is its range (``held_ranges``): any time in it fits
+    as well (a lag's 0.46 s read as an arm of 0.463 s and an adhesion fading over 0.38 to
+    3.9 s: generator out-of-catalogue bag 32:5)."""
+    ranges = held_ranges(fit)
+    timed = []
+    for e in fit.model.effects:
+        for name, t in e.times.items():
+            if np.isfinite(t) and t > 0:
+                key = next((k for k, v in e.parameters.items() if v == t), None)
+                lo, hi = ranges.get(key, (t, t)) if key is not None else (t, t)
+                timed.append((e, name, t, (lo, hi)))
+
+    def within(a: tuple[float, float], b: tuple[float, float]) -> bool:
+        return np.log(max(a[0], b[0]) / min(a[1], b[1])) <= SHARED_TIME
+
+    def said(name: str, t: float, span: tuple[float, float]) -> str:
+        return f"{name} {t:.3g} s" if span == (t, t) else f"{name} {span[0]:.3g}-{span[1]:.3g} s"
+
+    return tuple(f"{a.id}'s {said(na, ta, ra)} and {b.id}'s {said(nb, tb, rb)}"
+                 for i, (a, na, ta, ra) in enumerate(timed) for b, nb, tb, rb in timed[i + 1:]
+                 if a.id != b.id and within(ra, rb))
 
 
 def sample_interval(record: Record) -> float:
@@ -420,7 +489,7 @@ def choose(tried: Sequence[Candidate]) -> tuple[str | None, tuple[str, ...]]:
     eligible = [c for c in tried if c.eligible] or [c for c in tried if c.completes]
     eligible.sort(key=lambda c: (c.misfit_delta_bic, c.delta_bic, c.effect))
     if not eligible:
-        return None, tuple(c.effect for c in tried if c.significant or c.clears)
+        return None, tuple(c.effect for c in tried if (c.significant or c.clears) and not c.contradicted)
     best = eligible[0]
     rivals = tuple(c.effect for c in eligible[1:] if c.misfit_delta_bic - best.misfit_delta_bic < BIC_DECISIVE)
     return (None, (best.effect, *rivals)) if rivals else (best.effect, ())
@@ -438,8 +507,9 @@ def judged_where(current: ModelFit, cls: type) -> tuple[tuple[str, ...], tuple[s
     return phases, signals
 
 
-def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate:
-    """The BIC and signature tests of ``with_effect`` (``current`` + the effect)."""
+def judge(current: ModelFit, with_effect: ModelFit, effect_id: str, record: Record | None = None) -> Candidate:
+    """The BIC and signature tests of ``with_effect`` (``current`` + the effect), and rule 5
+    on ``record``'s readings (None: not asked, the readings not at hand)."""
     cls = effect_class(effect_id, with_effect.forms.get(effect_id))
     phases, signals = judged_where(current, cls)
     chi_b, n_b = current.phase_chi2(phases, signals)
@@ -465,4 +535,5 @@ def judge(current: ModelFit, with_effect: ModelFit, effect_id: str) -> Candidate
     determined = not undetermined(with_effect, effect_id)
     return Candidate(effect_id, with_effect, float(delta), with_effect.rmse_force, float(before), float(after),
                      float(explained), significant, determined, form=cls.form, footprint=footprint,
-                     misfit_delta_bic=where_misfit, clears=clears)
+                     misfit_delta_bic=where_misfit, clears=clears,
+                     contradicted="" if record is None else fades_unmodelled(record, with_effect, effect_id))

@@ -76,7 +76,7 @@ def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
         return Candidate(effect_id, None, np.inf, np.nan, 0.0, 0.0, 0.0, False, False,
                          note=f"the fit failed: {type(exc).__name__}: {exc}",
                          form=effect_class(effect_id, form).form)
-    return judge(current, best, effect_id)
+    return judge(current, best, effect_id, record)
 
 
 def other_forms(current: ModelFit, defaults: Sequence[Candidate]) -> list[tuple[str, str]]:
@@ -264,7 +264,7 @@ def forms_again(record: Record, forward: QuasiStaticFE, current: ModelFit, verdi
     revised, changes = revisit_forms(record, forward, refine(record, forward, best.fit, noise), base, noise, progress)
     if not changes:
         return None
-    tried = [judge(current, revised, c.effect) if c is best else c for c in verdict.candidates]
+    tried = [judge(current, revised, c.effect, record) if c is best else c for c in verdict.candidates]
     missing, undecided = choose(tried)
     if missing != best.effect:
         return None
@@ -362,7 +362,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
                 progress(f"choosing the forms of {models[-1].name} again")
             models[-1], changes = revisit_forms(record, forward, models[-1], base, noise, progress)
         # The verdict quotes the model as it is added (refitted to convergence), not its screening fit.
-        tried = [judge(models[-2], models[-1], c.effect) if c is winner else c for c in verdict.candidates]
+        tried = [judge(models[-2], models[-1], c.effect, record) if c is winner else c for c in verdict.candidates]
         evidence = evidence_text(models[-2], tried, verdict.missing_effect, verdict.undecided)
         if changes:
             evidence += " Forms chosen again in this model: " + "; ".join(changes) + "."

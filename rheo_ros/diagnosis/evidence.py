@@ -100,6 +100,8 @@ def evidence_text(current: ModelFit, tried: Sequence[Candidate], missing: str | 
             for c in tried[:3]:
                 if c.fit is None:
                     why.append(f"{c.effect}: {c.note}")
+                elif c.contradicted and c.delta_bic < -BIC_DECISIVE:
+                    why.append(f"{c.effect} ({c.form} form) lowers BIC by {-c.delta_bic:.3g}, but {c.contradicted}")
                 elif c.delta_bic >= -BIC_DECISIVE:
                     why.append(f"{c.effect} changes BIC by {c.delta_bic:+.3g}")
                 elif c.excess_before <= DETECT_SIGMAS:
