@@ -5,6 +5,7 @@ flattened verdict. Fast (no fitting): these are the tests mutation testing runs
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -659,3 +660,43 @@ def test_a_family_whose_default_completes_the_model_has_its_other_forms_tried():
     fading = Candidate("adhesion", None, -140.0, 0.0, 0.0, 0.0, 0.0, False, False, clears=("force in the pull (11 sd)",))
     assert ("adhesion", "held") in other_forms(quiet, [fading])
     assert other_forms(quiet, [replace(fading, clears=())]) == []
+
+
+def test_readings_that_fall_after_the_release_refuse_a_steady_force_held_by_bounds_alone():
+    """Rule 5 (``fades_unmodelled``) on the analytic block (no FE; 20 N/m^2 of stress in the
+    keep): its release reads nothing but what is added below. Readings falling over 0.5 s
+    (a sensor's lag) against a model holding its force: refused, the levels quoted. Readings
+    steady (a held force), or a model whose own force falls as fast, or a parameter no range
+    holds: not refused. On the second of two pushes the zero is what the array read before
+    the first (before the second it read the first push's load)."""
+    from conftest import analytic_block_record
+
+    from rheo_ros.config.setup import Setup, check_params
+    from rheo_ros.experiment import StageProfile
+
+    setup = Setup(check_params({"geometry": "uniaxial"}))
+    truth = {"E": 3.33e4, "c1": 1.69e5, "c2": 3.11e7, "gamma": 0.3}
+    push = StageProfile(depth=4e-3, velocity=1e-3, keep_time=5.0, release_time=10.0)
+
+    def case(profile, shape, model_shape, ranges=("adhesion.fraction",)):
+        clean = replace(analytic_block_record(setup, truth, profile), stage_profile=profile)   # as release_jobs
+        t = clean.force_t - profile.t_keep_end
+        after = np.where(t >= 0.0, shape(np.maximum(t, 0.0)), 0.0)
+        rec = replace(clean, force=clean.force + 0.01 * after[:, None] + 0.001 * np.sin(37.0 * clean.force_t)[:, None])
+        fit = SimpleNamespace(prediction_total=np.where(t >= 0.0, 0.05 * model_shape(np.maximum(t, 0.0)), 1.0),
+                              estimate=SimpleNamespace(statistics=SimpleNamespace(
+                                  ranges={k: (0.1, 0.2) for k in ranges})))
+        return decision.fades_unmodelled(rec, fit, "adhesion")
+
+    lag, steady = (lambda t: np.exp(-t / 0.5)), (lambda t: np.ones_like(t))
+    said = case(push, lag, steady)
+    level = re.search(r"fall from ([0-9.e-]+) N over its first second to ([0-9.e-]+) N", said)
+    assert said.endswith("a force that fades") and level, said
+    segments = len(setup.tactile.segment_edges) - 1
+    assert float(level[1]) == pytest.approx(segments * 0.01 * 0.5 * (np.exp(-0.2) - np.exp(-2.2)), rel=0.05)
+    assert float(level[2]) < 0.1 * float(level[1])
+    assert case(push, steady, steady) == ""
+    assert case(push, lag, lag) == ""
+    assert case(push, lag, steady, ranges=()) == ""
+    second = replace(push, start_delay=push.t_end + 5.0, before=(push,))
+    assert case(second, lag, steady).endswith("a force that fades")
