@@ -33,12 +33,13 @@ from rheo_ros.models.effects import Adhesion, HeldAdhesion, RelaxationBranch, Se
 
 class Fit:
     """What ``judge`` reads of a ``ModelFit``: the chi-square per phase, the BIC, the
-    estimate's values and std, the force RMS, the effects (ids) and their forms, the signed
-    parameters."""
+    estimate's values and std, the force RMS (over the record and per phase), the effects
+    (ids) and their forms, the signed parameters."""
 
     def __init__(self, chi: dict[str, tuple[float, int]], bic: float, params=None, std=None, rmse: float = 0.0,
-                 forms=None, signed=(), samples: int = 1000, effects=()):
+                 forms=None, signed=(), samples: int = 1000, effects=(), rmse_by_phase=None):
         self.chi, self.bic, self.rmse_force, self.forms, self.samples = chi, bic, rmse, forms or {}, samples
+        self.rmse_by_phase = rmse_by_phase or {}
         self.effects = tuple(effects)
         self.estimate = SimpleNamespace(params=params or {}, std=std or {}, statistics=None)
         self.model = SimpleNamespace(signed_parameters=tuple(signed))
@@ -700,3 +701,17 @@ def test_readings_that_fall_after_the_release_refuse_a_steady_force_held_by_boun
     assert case(push, lag, steady, ranges=()) == ""
     second = replace(push, start_delay=push.t_end + 5.0, before=(push,))
     assert case(second, lag, steady).endswith("a force that fades")
+
+
+def test_an_effect_that_makes_the_total_force_misfit_more_where_it_shows_is_refused():
+    """Rule 6 (``worsens_total``): a settling drift that passes every other rule (BIC down
+    by 440, the pull's binned excess removed) but raises the pull's total-force RMS from
+    0.0502 to 0.066 N (1.31 x; generator out-of-catalogue bag 33:5, a sensor's lag) is
+    refused, the phase and both RMS quoted; at 1.19 x it is named."""
+    current = Fit({"pull": (400.0, 100)}, bic=1000.0, rmse_by_phase={"pull": 0.0502, "keep": 0.0076})
+    worse = Fit({"pull": (101.0, 100)}, bic=560.0, rmse_by_phase={"pull": 0.066, "keep": 0.0074})
+    c = judge(current, worse, "sensor_drift")
+    assert c.significant and not c.eligible
+    assert c.contradicted == "it makes the total force misfit more in the pull (RMS 0.0502 -> 0.066 N)"
+    slightly = Fit({"pull": (101.0, 100)}, bic=560.0, rmse_by_phase={"pull": 0.0502 * 1.19, "keep": 0.0074})
+    assert judge(current, slightly, "sensor_drift").contradicted == ""
