@@ -340,7 +340,8 @@ def fades_unmodelled(record: Record, fit: ModelFit, effect_id: str) -> str:
     release is too short to tell)."""
     if not any(k.startswith(effect_id + ".") for k in held_ranges(fit)):
         return ""
-    t = record.force_t - record.profile().t_keep_end
+    profile = record.profile()
+    t = record.force_t - profile.t_keep_end
     start, split, end = RELEASE_WINDOWS
     first, later = (t >= start) & (t < split), (t >= split) & (t < end)
     if first.sum() < 10 or later.sum() < 10 or t[-1] < end:
@@ -348,7 +349,7 @@ def fades_unmodelled(record: Record, fit: ModelFit, effect_id: str) -> str:
     read = record.force.sum(axis=1)
     # Above what the unloaded array reads (a clipped cell's noise reads 0.4 of its std at no
     # force): before the first push, which a later push's record also holds.
-    first_push = min(contact_time(record), record.profile().pushes[0].t_pull_start)
+    first_push = min(contact_time(record), profile.pushes[0].t_pull_start)
     unloaded = record.force_t < first_push - UNLOADED_GUARD
     zero = float(read[unloaded].mean()) if unloaded.sum() >= 10 else 0.0
     level, settled = float(read[first].mean()) - zero, float(read[later].mean()) - zero
@@ -443,8 +444,7 @@ def shared_times(fit: ModelFit) -> tuple[str, ...]:
         for name, t in e.times.items():
             if np.isfinite(t) and t > 0:
                 key = next((k for k, v in e.parameters.items() if v == t), None)
-                lo, hi = ranges.get(key, (t, t)) if key is not None else (t, t)
-                timed.append((e, name, t, (lo, hi)))
+                timed.append((e, name, t, ranges.get(key, (t, t))))
 
     def within(a: tuple[float, float], b: tuple[float, float]) -> bool:
         return np.log(max(a[0], b[0]) / min(a[1], b[1])) <= SHARED_TIME
