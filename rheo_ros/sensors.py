@@ -733,38 +733,51 @@ def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, 
     cell noises, two steps and ``FAULT_SHARE`` of the load."""
     if readout.cell_high is None:
         return ()
-    high, at_high = readout.cell_high, readout.cell_at_high
-    rows, cols = high.shape
+    high = readout.cell_high
+    value, load = readout.cell_last, readout.cell_load
+    peak, has_others = _peers_median(array, high)
     floor = max(threshold, 0.0)
+    dead = has_others & (readout.cell_run >= MIN_DEAD_RUN) & (
+        load > np.maximum(value, floor) + _clear(noise, resolution, load))
+    often = _often(readout.cell_at_high, readout.frames)
+    saturated = (has_others & ~dead & often & (floor < high) & (high < saturation)
+                 & (peak > high + _clear(noise, resolution, peak)))
     faults = []
-    for r in range(rows):
-        for c in range(cols):
-            others = np.zeros((rows, cols), bool)
-            if rows > 1:
-                others[:, c] = True
-            else:
-                others[0, array.segment == array.segment[c]] = True
-            others[r, c] = False
-            if not others.any():
-                continue
-            value, load = float(readout.cell_last[r, c]), float(readout.cell_load[r, c])
-            if readout.cell_run[r, c] >= MIN_DEAD_RUN and load > max(value, floor) + _clear(noise, resolution, load):
-                since = float(readout.cell_since[r, c])
-                faults.append(CellFault(r, c, "dead", value, load, None if since == readout.first_t else since))
-                continue
-            peak, top = float(np.median(high[others])), float(high[r, c])
-            if _often(at_high[r, c], readout.frames) and floor < top < saturation and peak > top + _clear(
-                    noise, resolution, peak):
-                faults.append(CellFault(r, c, "saturated", top, peak))
+    for r, c in np.argwhere(dead | saturated):   # row-major, as the warnings are listed
+        if dead[r, c]:
+            since = float(readout.cell_since[r, c])
+            faults.append(CellFault(int(r), int(c), "dead", float(value[r, c]), float(load[r, c]),
+                                    None if since == readout.first_t else since))
+        else:
+            faults.append(CellFault(int(r), int(c), "saturated", float(high[r, c]), float(peak[r, c])))
     return tuple(faults)
 
 
-def _clear(noise: float, resolution: float, load: float) -> float:
+def _peers_median(array: TactileArray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each cell's peers' median of ``high`` (rows, cols) - the other cells of its column,
+    of its segment for a one-row array - and whether it has peers (NaN where not)."""
+    rows, cols = high.shape
+    peak = np.full((rows, cols), np.nan)
+    if rows > 1:
+        groups = [(slice(None), np.array([c])) for c in range(cols)]
+    else:
+        groups = [(slice(0, 1), np.flatnonzero(array.segment == s)) for s in np.unique(array.segment[:cols])]
+    for rows_of, cols_of in groups:
+        members = high[rows_of][:, cols_of].ravel()   # row-major within the group
+        k = members.size
+        if k < 2:
+            continue
+        others = np.broadcast_to(members, (k, k))[~np.eye(k, dtype=bool)].reshape(k, k - 1)
+        peak[rows_of, cols_of] = np.median(others, axis=1).reshape(high[rows_of][:, cols_of].shape)
+    return peak, np.isfinite(peak)
+
+
+def _clear(noise: float, resolution: float, load: np.ndarray) -> np.ndarray:
     """How far a load must be above a cell's reading to be clearly missed by it."""
-    return max(FAULT_MARGIN * np.nan_to_num(noise), 2.0 * resolution, FAULT_SHARE * load)
+    return np.maximum(max(FAULT_MARGIN * float(np.nan_to_num(noise)), 2.0 * resolution), FAULT_SHARE * load)
 
 
-def _often(count: int, frames: int) -> bool:
+def _often(count: int | np.ndarray, frames: int) -> bool | np.ndarray:
     """A highest reading met in this many of ``frames`` is a ceiling (saturation): a
     smooth load passes its peak once."""
     return count >= max(10, 0.01 * frames)
