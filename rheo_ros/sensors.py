@@ -482,8 +482,9 @@ class TactileReadout:
             if self.distinct.size > MAX_DISTINCT:
                 self.overflow, self.distinct = True, np.empty(0)
 
-    def _group_load(self, frames: np.ndarray) -> np.ndarray:
-        """(F, rows, cols): the median of each cell's group but itself, per frame."""
+    def peers_median(self, frames: np.ndarray) -> np.ndarray:
+        """(F, rows, cols): the median of each cell's peers - the other cells of its
+        column, of its segment for a one-row array - per frame (-inf where it has none)."""
         if frames.shape[1] > 1 or self.segment is None:
             return np.moveaxis(_median_of_others(np.moveaxis(frames, 1, -1)), -1, 1)
         load = np.empty_like(frames)
@@ -495,7 +496,7 @@ class TactileReadout:
     def _add_cells(self, frames: np.ndarray, t: np.ndarray) -> None:
         high = frames.max(axis=0)
         at_high = np.count_nonzero(frames == high, axis=0)
-        load = self._group_load(frames)
+        load = self.peers_median(frames)
         # Where each cell's last run of equal readings starts in this block (-1: before it).
         before = frames[:1] if self.cell_last is None else self.cell_last[None]
         changed = np.concatenate([frames[:1] != before, frames[1:] != frames[:-1]])
@@ -692,7 +693,7 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
                             f"{marker_std:.3g} m")
     else:
         marker_std, source["markers.noise"] = stated_marker_noise, "parameters"
-    faults = cell_faults(stated, readout, threshold, noise, float(resolution), saturation)
+    faults = cell_faults(readout, threshold, noise, float(resolution), saturation)
     warnings += [f.warning() for f in faults]
     tactile = replace(stated, threshold=threshold, resolution=float(resolution), noise=float(noise),
                       saturation=saturation, faults=faults)
@@ -721,7 +722,7 @@ FAULT_SHARE = 0.05     # ... and at least this share of that load (noise-free re
 MIN_DEAD_RUN = 10      # frames of one reading under a load before a cell is called dead
 
 
-def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, noise: float, resolution: float,
+def cell_faults(readout: TactileReadout, threshold: float, noise: float, resolution: float,
                 saturation: float) -> tuple[CellFault, ...]:
     """The cells that do not read their load, each against the other cells of its
     column (in the plane model the pressure is the same along z; across a segment's
@@ -735,7 +736,8 @@ def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, 
         return ()
     high = readout.cell_high
     value, load = readout.cell_last, readout.cell_load
-    peak, has_others = _peers_median(array, high)
+    peak = readout.peers_median(high[None])[0]
+    has_others = peak > -np.inf
     floor = max(threshold, 0.0)
     dead = has_others & (readout.cell_run >= MIN_DEAD_RUN) & (
         load > np.maximum(value, floor) + _clear(noise, resolution, load))
@@ -751,25 +753,6 @@ def cell_faults(array: TactileArray, readout: TactileReadout, threshold: float, 
         else:
             faults.append(CellFault(int(r), int(c), "saturated", float(high[r, c]), float(peak[r, c])))
     return tuple(faults)
-
-
-def _peers_median(array: TactileArray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each cell's peers' median of ``high`` (rows, cols) - the other cells of its column,
-    of its segment for a one-row array - and whether it has peers (NaN where not)."""
-    rows, cols = high.shape
-    peak = np.full((rows, cols), np.nan)
-    if rows > 1:
-        groups = [(slice(None), np.array([c])) for c in range(cols)]
-    else:
-        groups = [(slice(0, 1), np.flatnonzero(array.segment == s)) for s in np.unique(array.segment[:cols])]
-    for rows_of, cols_of in groups:
-        members = high[rows_of][:, cols_of].ravel()   # row-major within the group
-        k = members.size
-        if k < 2:
-            continue
-        others = np.broadcast_to(members, (k, k))[~np.eye(k, dtype=bool)].reshape(k, k - 1)
-        peak[rows_of, cols_of] = np.median(others, axis=1).reshape(high[rows_of][:, cols_of].shape)
-    return peak, np.isfinite(peak)
 
 
 def _clear(noise: float, resolution: float, load: np.ndarray) -> np.ndarray:
