@@ -182,16 +182,28 @@ class BadMessages:
     data have flowed for ``clear_after`` s of wall time after the last bad one (a node must
     not stay WARN for a glitch long past: the count stays in the figures)."""
 
+    LOG_PERIOD = 5.0   # s between two log lines of bad messages
+
     def __init__(self, inputs: Iterable[str], clear_after: float) -> None:
         self.counts: dict[str, int] = dict.fromkeys(inputs, 0)
         self.clear_after = clear_after
         self.last = ""                       # "<topic>: what was wrong"
         self.last_at: float | None = None    # wall time (monotonic) of the last bad message
         self.good_at: float | None = None    # of the last good one
+        self.logged_at: float | None = None  # of the last one logged
 
-    def bad(self, stream: str, text: str) -> None:
+    def bad(self, stream: str, text: str) -> bool:
+        """Count a bad message; True where it is to be logged: the first, then one every
+        ``LOG_PERIOD`` s. Throttled here, not by rclpy's logger, which finds its caller's
+        frame on every call, throttled or not (~0.8 ms: a stream of bad messages at a few
+        hundred a second took most of a core)."""
+        now = time.monotonic()
         self.counts[stream] += 1
-        self.last, self.last_at = text, time.monotonic()
+        self.last, self.last_at = text, now
+        if self.logged_at is not None and now - self.logged_at < self.LOG_PERIOD:
+            return False
+        self.logged_at = now
+        return True
 
     def good(self) -> None:
         self.good_at = time.monotonic()

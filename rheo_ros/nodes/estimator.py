@@ -166,8 +166,8 @@ class EstimatorNode(Node):
                 raise MessageError(problem)
             events = add(t, value)
         except (MessageError, RecordError, ValueError) as exc:
-            self.bad.bad(stream, f"{TOPICS[stream]}: {exc}")
-            self.get_logger().warning(f"{self.bad.last}; message ignored", throttle_duration_sec=5.0)
+            if self.bad.bad(stream, f"{TOPICS[stream]}: {exc}"):
+                self.get_logger().warning(f"{self.bad.last}; message ignored")
             return
         self.bad.good()
         for e in events:  # /rheo/phase is the segmenter node's; the same core finds the same phases

@@ -67,8 +67,8 @@ class SegmenterNode(Node):
                 raise MessageError(problem)
             events = add(t, value)
         except (MessageError, ValueError) as exc:
-            self.bad.bad(topic, f"{topic}: {exc}")
-            self.get_logger().warning(f"{self.bad.last}; message ignored", throttle_duration_sec=5.0)
+            if self.bad.bad(topic, f"{topic}: {exc}"):
+                self.get_logger().warning(f"{self.bad.last}; message ignored")
             return
         self.bad.good()
         for e in events:
