@@ -104,6 +104,9 @@ def replay(short_bag, tmp_path_factory, ros_env):
         g.node.create_subscription(Diagnosis, "/rheo/diagnosis", lambda m: verdicts.append(read_diagnosis(m)),
                                    LATCHED)
         g.node.create_subscription(Phase, "/rheo/phase", phases.append, LATCHED)
+        statuses = []
+        g.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                   lambda m: statuses.extend(s for s in m.status if s.name.endswith("estimator")), 10)
         try:
             params = ["--ros-args", "--params-file", str(short_bag / "params.yaml")]
             g.start("estimator", *params)
@@ -127,8 +130,11 @@ def replay(short_bag, tmp_path_factory, ros_env):
             g.spin_until(lambda: verdicts, 120, "the diagnosis after release")
             time.sleep(0.5)
             g.executor.spin_once(timeout_sec=0.1)
+            g.spin_until(lambda: statuses and "tactile excess used Pa" in {v.key for v in statuses[-1].values}, 10,
+                         "the sensor model on /diagnostics")
             runs.append({"estimates": estimates, "phases": phases, "late": late, "verdicts": verdicts,
-                         "estimator_log": (tmp / "estimator.log").read_text()})
+                         "estimator_log": (tmp / "estimator.log").read_text(),
+                         "figures": {v.key: v.value for v in statuses[-1].values}})
         finally:
             g.close()
     return runs, offline + (diagnoses,)
@@ -201,6 +207,19 @@ def test_the_estimator_publishes_the_offline_diagnosis_after_release(replay):
         np.testing.assert_allclose(list(got["params"].values()), d.values, rtol=1e-9)
         np.testing.assert_allclose([v[1] for v in got["models"].values()], d.bic, rtol=1e-9)
         assert got["evidence"] == d.evidence and "is adequate" in got["evidence"]
+
+
+def test_the_estimator_reports_the_sensor_it_read_on_diagnostics(replay):
+    """/diagnostics carries the sensor model the last phase's record showed (the closed-form
+    lane builds it, off the executor's thread): the package simulator's default array, a
+    300 Pa dead band and 100 Pa of cell noise, whose mean reading exceeds a cell's pressure
+    by at most 3.1 Pa (with the noise's doubt; README, Sensor)."""
+    runs, _ = replay
+    for run in runs:
+        figures = run["figures"]
+        assert figures["sensor"].startswith("dead band 300 Pa"), figures
+        assert abs(float(figures["tactile noise Pa"]) - 100.0) < 10.0, figures   # 10 %: the noise's own spread
+        assert 1.0 < float(figures["tactile excess used Pa"]) < 6.0, figures
 
 
 def test_estimator_warns_on_a_missing_topic_and_survives_bad_messages(short_bag, tmp_path, ros_env):

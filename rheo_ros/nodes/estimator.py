@@ -116,6 +116,10 @@ class EstimatorNode(Node):
         self.bad = BadMessages(INPUTS, self.stale_after)
         self.last_error = ""
         self.latest: Update | None = None
+        # The last job's sensor model (``Record.sensor_json``) for /diagnostics, built by the
+        # closed-form lane after its update is out: the dead band's excess costs ~50 ms on a
+        # new noise (``cell_reading_bias``), which held the executor's messages back.
+        self.sensor_model: dict | None = None
         self.open_params: dict[str, str] = {}
         self.predicted_at: dict[str, float] = {}
         self.updates = 0
@@ -278,6 +282,12 @@ class EstimatorNode(Node):
                 self.fit_jobs.put((job, closed, arrival))
             elif closed is None:
                 self._failed(job, failure)
+            if job.record is not None:
+                try:
+                    self.sensor_model = job.record.sensor_json()
+                except Exception as exc:   # a figure for /diagnostics must not stop the lane
+                    self.outbox.put(("error", f"sensor model for /diagnostics: {type(exc).__name__}: {exc}"))
+                    self._wake()
         self.fit_jobs.put(None)
 
     def fit_lane(self) -> None:
@@ -446,7 +456,7 @@ class EstimatorNode(Node):
         sensor = self.core.sensor
         if sensor is not None:
             reasons += sensor.warnings
-        model = self.core.last_record.sensor_json() if self.core.last_record is not None else None
+        model = self.sensor_model
         excess = (model["tactile"].get("excess") if model else None) or {}
         figures = {"experiment": seg.experiment, "state": seg.state, "updates": self.updates,
                    **({} if sensor is None else {"sensor": sensor.law, "tactile noise Pa": f"{sensor.tactile.noise:.4g}",

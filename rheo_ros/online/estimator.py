@@ -412,9 +412,6 @@ class OnlineEstimator:
         self.readout = setup.readout()   # the tactile readings so far, for the sensor they show
         self._unread: list[tuple[float, np.ndarray]] = []   # frames not yet added to it (in blocks: cheaper)
         self.sensor: SensorReading | None = None   # as the last record's readings showed it
-        # The last record built: its sensor model (``Record.sensor_json``) is computed when
-        # /diagnostics asks, not on the phase's path.
-        self.last_record: Record | None = None
         self.config = config or EstimatorConfig()
         self.segmenter = PhaseSegmenter(segmenter)
         self.streams = {"stage": _Stream(), "force": _Stream(), "markers": _Stream()}
@@ -652,7 +649,6 @@ class OnlineEstimator:
                             source=f"experiment {e.experiment} {e.name}", stage_profile=profile, sensor=self.sensor)
         except RecordError:
             return None
-        self.last_record = record
         if not kind and e.name != "pull" and met_at_rest(record):
             # The data decide: the stage met a specimen at rest, so the pushes before are
             # not its history (another object, or one that recovered fully). From the keep
