@@ -19,6 +19,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -132,10 +133,9 @@ def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tup
     augmented matrix exponential.
     """
     n = A.shape[0]
-    lam, V = np.linalg.eig(A)
-    if np.all(np.abs(lam.imag) < 1e-12 * (1 + np.abs(lam.real))) and np.linalg.cond(V) < 1e8:
-        lam, V = lam.real, V.real
-        Vinv = np.linalg.inv(V)
+    modes = _modes(A.tobytes(), A.shape, A.dtype.str)
+    if modes is not None:
+        lam, V, Vinv = modes
         lt = np.outer(taus, lam)
         small = np.abs(lt) < 1e-8
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -148,6 +148,24 @@ def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tup
     with np.errstate(over="ignore", invalid="ignore"):
         big = expm(aug[None] * taus[:, None, None])
         return big[:, :n, :n] @ x, big[:, :n, n:] @ b
+
+
+@lru_cache(maxsize=256)
+def _modes(data: bytes, shape: tuple[int, ...], dtype: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The real eigen-decomposition of the matrix ``data`` (its bytes, ``shape``, ``dtype``) for
+    ``_flows``: eigenvalues, eigenvectors and their inverse, or None where it is complex
+    or ill-conditioned. Cached: a response flows through every segment of a program with
+    the same matrix (five times a release), and a fit's residual calls many responses of
+    one model. Read-only arrays, shared by every caller."""
+    A = np.frombuffer(data, dtype=dtype).reshape(shape)
+    lam, V = np.linalg.eig(A)
+    if not (np.all(np.abs(lam.imag) < 1e-12 * (1 + np.abs(lam.real))) and np.linalg.cond(V) < 1e8):
+        return None
+    lam, V = lam.real, V.real
+    out = (lam, V, np.linalg.inv(V))
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def respond(element: Element, program: Program, t: np.ndarray) -> Response:
