@@ -402,6 +402,39 @@ def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[floa
     return float(MAD_TO_STD * mad / np.sqrt(6.0)), int(d2.size)
 
 
+def column_difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``difference_noise`` of each column of ``y`` (T, k) on its own, at once: (k,) stds
+    (NaN where too few) and (k,) differences counted; the same numbers as a loop over the
+    columns (the same medians: each column's unused differences padded half with -inf and
+    half with +inf, which leaves its middle where the used ones put it)."""
+    y = np.asarray(y, float)
+    d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
+    ok = np.ones(d2.shape, bool) if use is None else use[:-2] & use[1:-1] & use[2:]
+    counts = ok.sum(axis=0)
+    centre = _column_medians(d2, ok, counts)
+    mad = _column_medians(np.abs(d2 - centre), ok, counts)
+    std = np.where(counts >= MIN_DIFFERENCES, MAD_TO_STD * mad / np.sqrt(6.0), np.nan)
+    return std, counts
+
+
+def _column_medians(values: np.ndarray, ok: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(k,) the median of each column's entries where ``ok`` (T, k), NaN where none: by
+    ``np.median`` over the column with its other entries padded evenly by -inf and +inf
+    (a column whose padding is odd gets one more padding row)."""
+    out = np.full(values.shape[1], np.nan)
+    for extra in (0, 1):
+        cols = np.flatnonzero(((values.shape[0] + extra - counts) % 2 == 0) & (counts > 0))
+        if cols.size == 0:
+            continue
+        v, pad = values[:, cols], ~ok[:, cols]
+        if extra:
+            v = np.vstack([v, np.zeros((1, cols.size))])
+            pad = np.vstack([pad, np.ones((1, cols.size), bool)])
+        low = np.cumsum(pad, axis=0) <= pad.sum(axis=0) // 2
+        out[cols] = np.median(np.where(pad, np.where(low, -np.inf, np.inf), v), axis=0)
+    return out
+
+
 MAX_DISTINCT = 1 << 16     # more distinct readings than this: no lattice to read (continuous)
 MIN_LATTICE = 50           # distinct readings a quantisation step is read from
 LATTICE_REPEATS = 100      # ... or fewer, each met this often on average (``TactileReadout.resolution``)
@@ -643,7 +676,7 @@ def read_sensor(stated: TactileArray, readout: TactileReadout, forces: np.ndarra
 
     def cell_noise(floor: np.ndarray | None) -> float:
         use = unsaturated if floor is None else unsaturated & (forces > floor)
-        seg = np.array([difference_noise(forces[:, j], use[:, j])[0] for j in range(forces.shape[1])]) / to_cell
+        seg = column_difference_noise(forces, use)[0] / to_cell
         return float(np.nanmedian(seg)) if np.isfinite(seg).any() else math.nan
 
     resolution = readout.resolution

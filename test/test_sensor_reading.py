@@ -16,7 +16,8 @@ from rheo_ros.config.setup import Setup, parse_params
 from rheo_ros.identification.noise import force_noise
 from rheo_ros.identification.pipeline import require_readings
 from rheo_ros.record import RecordError
-from rheo_ros.sensors import LINEAR, TactileArray, TactileReadout, read_sensor
+from rheo_ros.sensors import (LINEAR, TactileArray, TactileReadout, column_difference_noise, difference_noise,
+                              read_sensor)
 
 CONTRACT_ONLY = yaml.safe_dump(g.params_document(g.Layout()))
 CELL_NOISE = 100.0          # Pa, every noisy sensor of the generator
@@ -344,3 +345,21 @@ def test_the_sensor_model_states_the_excess_it_allows_and_what_the_unloaded_arra
     assert clipped["measured"] >= CELL_NOISE / math.sqrt(2 * math.pi) * 0.97, clipped   # a bound over it
     assert records["noise_free"].sensor_json()["tactile"]["excess"]["used"] == 0.0
 
+
+
+def test_each_columns_noise_at_once_is_the_loops_to_the_bit():
+    """``column_difference_noise`` (every segment at once) gives each column exactly what
+    ``difference_noise`` gives it alone, however many of its differences are in use,
+    with ties (a lattice of readings) and with none in use."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        T, k = int(rng.integers(3, 300)), int(rng.integers(1, 33))
+        y = rng.normal(0.0, 3.0, (T, k)) + np.linspace(0.0, 40.0, T)[:, None]
+        if trial % 2:
+            y = np.round(y)   # ties
+        use = rng.random((T, k)) < rng.uniform(0.0, 1.0)
+        std, counts = column_difference_noise(y, use)
+        for j in range(k):
+            alone, count = difference_noise(y[:, j], use[:, j])
+            assert count == counts[j]
+            assert (np.isnan(alone) and np.isnan(std[j])) or alone == std[j]

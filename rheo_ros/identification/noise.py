@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rheo_ros.record import Record
-from rheo_ros.sensors import difference_noise, marker_noise
+from rheo_ros.sensors import column_difference_noise, difference_noise, marker_noise
 
 __all__ = ["SensorNoise", "Weights", "despiked", "difference_noise", "force_noise", "isolated_spikes",
            "sensor_noise", "spikes_note"]
@@ -102,18 +102,14 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     readings up to the top as measures while its cells clipped one by one (seen: E 51 %
     low, the misfit "1e7 x the noise")."""
     force = record.force
-    nodes = force.shape[1]
     band = record.dead_band
     # Live by the threshold and the saturation alone first (a saturated reading has no
     # noise: a record at saturation most of the time would show none), then with the
     # margin the noise found sets.
     live = np.ones(force.shape, bool) if band is None else (force > band.force) & (force < band.saturation)
-    std = np.full(nodes, np.nan)
-    counts = np.zeros(nodes, int)
     from_cells = cells_noise(record)
     for _ in range(2 if band is not None else 1):
-        for j in range(nodes):
-            std[j], counts[j] = difference_noise(force[:, j], live[:, j])
+        std, counts = column_difference_noise(force, live)
         if band is not None:
             std0 = np.nan_to_num(np.where(np.isfinite(std), std, from_cells), nan=0.0)
             # The top by each reading: one above it is clipped and bounds the force from below
