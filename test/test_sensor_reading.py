@@ -16,8 +16,14 @@ from rheo_ros.config.setup import Setup, parse_params
 from rheo_ros.identification.noise import force_noise
 from rheo_ros.identification.pipeline import require_readings
 from rheo_ros.record import RecordError
-from rheo_ros.sensors import (LINEAR, TactileArray, TactileReadout, column_difference_noise, difference_noise,
-                              read_sensor)
+from rheo_ros.sensors import (
+    LINEAR,
+    TactileArray,
+    TactileReadout,
+    column_difference_noise,
+    difference_noise,
+    read_sensor,
+)
 
 CONTRACT_ONLY = yaml.safe_dump(g.params_document(g.Layout()))
 CELL_NOISE = 100.0          # Pa, every noisy sensor of the generator
