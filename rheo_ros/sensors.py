@@ -391,36 +391,38 @@ def difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[floa
     ``y[i-1] - 2 y[i] + y[i+1]`` is noise with variance 6 sigma^2 plus the response's
     curvature, which at the sensors' rates is far below the noise except at a phase's
     corners. A robust scale (median absolute deviation) ignores those few corners."""
-    y = np.asarray(y, float)
-    d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
-    if use is not None:
-        d2 = d2[use[:-2] & use[1:-1] & use[2:]]
-    d2 = d2.ravel()
-    if d2.size < MIN_DIFFERENCES:
-        return float("nan"), int(d2.size)
-    mad = np.median(np.abs(d2 - np.median(d2)))
-    return float(MAD_TO_STD * mad / np.sqrt(6.0)), int(d2.size)
+    d2, ok = _second_differences(y, use)
+    std, counts = _mad_noise(d2.reshape(-1, 1), ok.reshape(-1, 1))   # every column pooled
+    return float(std[0]), int(counts[0])
 
 
 def column_difference_noise(y: np.ndarray, use: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``difference_noise`` of each column of ``y`` (T, k) on its own, at once: (k,) stds
-    (NaN where too few) and (k,) differences counted; the same numbers as a loop over the
-    columns (the same medians: each column's unused differences padded half with -inf and
-    half with +inf, which leaves its middle where the used ones put it)."""
+    """``difference_noise`` of each column of ``y`` (T, k) on its own, all at once: (k,)
+    stds (NaN where too few) and (k,) differences counted."""
+    return _mad_noise(*_second_differences(y, use))
+
+
+def _second_differences(y: np.ndarray, use: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``y``'s second differences along its first axis and where three samples in a row
+    are in ``use``."""
     y = np.asarray(y, float)
     d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
-    ok = np.ones(d2.shape, bool) if use is None else use[:-2] & use[1:-1] & use[2:]
+    return d2, (np.ones(d2.shape, bool) if use is None else use[:-2] & use[1:-1] & use[2:])
+
+
+def _mad_noise(d2: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) the white-noise std of each column of second differences ``d2`` (T, k) where
+    ``ok`` (NaN below ``MIN_DIFFERENCES``), and the differences counted."""
     counts = ok.sum(axis=0)
-    centre = _column_medians(d2, ok, counts)
-    mad = _column_medians(np.abs(d2 - centre), ok, counts)
-    std = np.where(counts >= MIN_DIFFERENCES, MAD_TO_STD * mad / np.sqrt(6.0), np.nan)
-    return std, counts
+    mad = _column_medians(np.abs(d2 - _column_medians(d2, ok, counts)), ok, counts)
+    return np.where(counts >= MIN_DIFFERENCES, MAD_TO_STD * mad / np.sqrt(6.0), np.nan), counts
 
 
 def _column_medians(values: np.ndarray, ok: np.ndarray, counts: np.ndarray) -> np.ndarray:
     """(k,) the median of each column's entries where ``ok`` (T, k), NaN where none: by
-    ``np.median`` over the column with its other entries padded evenly by -inf and +inf
-    (a column whose padding is odd gets one more padding row)."""
+    ``np.median`` over the columns at once, each column's other entries padded evenly by
+    -inf and +inf, which leaves its middle where its own entries put it (a column whose
+    padding is odd gets one more padding row)."""
     out = np.full(values.shape[1], np.nan)
     for extra in (0, 1):
         cols = np.flatnonzero(((values.shape[0] + extra - counts) % 2 == 0) & (counts > 0))

@@ -353,10 +353,11 @@ def test_the_sensor_model_states_the_excess_it_allows_and_what_the_unloaded_arra
 
 
 
-def test_each_columns_noise_at_once_is_the_loops_to_the_bit():
-    """``column_difference_noise`` (every segment at once) gives each column exactly what
-    ``difference_noise`` gives it alone, however many of its differences are in use,
-    with ties (a lattice of readings) and with none in use."""
+def test_each_columns_noise_at_once_is_its_median_absolute_deviation():
+    """``column_difference_noise`` (every segment at once) gives each column the median
+    absolute deviation of its own second differences in use (``np.median`` over them
+    alone), scaled to a std, within 1e-9 of it, however many are in use, with ties (a
+    lattice of readings) and with too few (NaN); ``difference_noise`` pools the columns."""
     rng = np.random.default_rng(7)
     for trial in range(300):
         T, k = int(rng.integers(3, 300)), int(rng.integers(1, 33))
@@ -364,8 +365,20 @@ def test_each_columns_noise_at_once_is_the_loops_to_the_bit():
         if trial % 2:
             y = np.round(y)   # ties
         use = rng.random((T, k)) < rng.uniform(0.0, 1.0)
+        d2 = y[:-2] - 2.0 * y[1:-1] + y[2:]
+        ok = use[:-2] & use[1:-1] & use[2:]
         std, counts = column_difference_noise(y, use)
         for j in range(k):
-            alone, count = difference_noise(y[:, j], use[:, j])
-            assert count == counts[j]
-            assert (np.isnan(alone) and np.isnan(std[j])) or alone == std[j]
+            mine = d2[ok[:, j], j]
+            assert counts[j] == mine.size
+            if mine.size < 10:
+                assert np.isnan(std[j])
+                continue
+            expected = 1.4826 * np.median(np.abs(mine - np.median(mine))) / np.sqrt(6.0)
+            assert std[j] == pytest.approx(expected, rel=1e-9, abs=1e-12)
+        pooled, count = difference_noise(y, use)
+        assert count == ok.sum()
+        if count >= 10:
+            every = d2[ok]
+            assert pooled == pytest.approx(1.4826 * np.median(np.abs(every - np.median(every))) / np.sqrt(6.0),
+                                           rel=1e-9, abs=1e-12)
