@@ -800,6 +800,32 @@ def test_a_model_whose_forces_overflow_gets_large_residuals_not_nan_or_zero():
         assert np.sum(np.abs(r) == OVERFLOW_RESIDUAL) > 0
 
 
+def test_reading_bounds_give_each_bounding_readings_excess_by_its_definition():
+    """``ReadingBounds.excess`` at the readings that bound the force (a fit's every
+    evaluation, those readings alone) is the definition over the whole array: the model
+    over the live threshold, plus its window's excess (``ReadingWindows.excess``), and at a
+    saturated reading the model under the top instead; on 200 random arrays with a dead
+    band, saturation and windows, the same within 1e-12 N."""
+    from rheo_ros.sensors import DeadBand
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        T, nodes = int(rng.integers(5, 400)), int(rng.integers(1, 6))
+        band = DeadBand(force=rng.uniform(0.1, 1.0, nodes), cells=np.full(nodes, 4.0), saturation=3.0)
+        std = rng.uniform(0.01, 0.2, nodes)
+        readings = rng.uniform(0.0, 4.0, (T, nodes)) * (rng.random((T, nodes)) < 0.7)
+        bounded = rng.random((T, nodes)) < 0.6
+        ceiling, top = band.threshold(std), band.top(std)
+        windows = F.ReadingWindows(band, readings, bounded, std)
+        force = rng.normal(1.0, 2.0, (T, nodes))
+        full = np.maximum(force - ceiling, 0.0) + windows.excess(force)
+        full = np.where(readings > top, np.minimum(force - top, 0.0), full)
+        at = np.flatnonzero(bounded)
+        got = F.ReadingBounds(readings, ceiling, top, windows, at).excess(force)
+        np.testing.assert_allclose(got, full[bounded], rtol=0, atol=1e-12)
+        assert np.any(got != 0.0) or not at.size
+
+
 def test_reading_windows_put_each_windows_excess_at_its_readings():
     """``ReadingWindows``: a segment's readings that are not live, 25 at a time in time
     order (a short last window) and 250 at a time, bound the window's mean force; a model

@@ -11,7 +11,7 @@ Live tactile readings away from the phase boundaries count (``identification.noi
 exact zero where the true force is small, and clipped noise leaves a small positive
 reading where it is zero; either would look like adhesion or drift to a comparison
 that took the readings at face value. A reading that is not live counts where the
-model lies outside what it stands for (``fit.bound_excess``: above the live threshold,
+model lies outside what it stands for (``fit.ReadingBounds``: above the live threshold,
 or below the force its window of readings shows, ``fit.ReadingWindows``), by that excess: a right
 model leaves such a reading about once in a thousand, a force the model misses under
 the dead band leaves them all.
@@ -26,7 +26,7 @@ from scipy.special import chdtrc
 
 from rheo_ros.experiment import PHASES, StageProfile, phase_of
 from rheo_ros.fe.quasistatic import QuasiStaticFE
-from rheo_ros.identification.fit import ReadingWindows, bound_excess, bounds, steady_readings
+from rheo_ros.identification.fit import ReadingBounds, ReadingWindows, bounds, steady_readings
 from rheo_ros.identification.noise import SensorNoise, sensor_noise
 from rheo_ros.models.effects import Model
 from rheo_ros.record import Record
@@ -114,7 +114,7 @@ def residual_stats(signal: str, t: np.ndarray, r: np.ndarray, noise: float,
     a (T, k) signal (the markers' coordinates) is pooled over its columns. ``floor``: the
     part of ``noise`` that is the model's own systematic floor (``SensorNoise.floored``).
     ``noisy`` (T,): the residuals that carry the noise (None: all); the others are a
-    bound's excess (``fit.bound_excess``), zero unless the model leaves the bound."""
+    bound's excess (``fit.ReadingBounds``), zero unless the model leaves the bound."""
     r2 = np.asarray(r, float).reshape(len(t), -1)
     noisy = np.ones(len(t), bool) if noisy is None else np.asarray(noisy, bool)
     which = phase_of(t, profile)
@@ -191,7 +191,9 @@ def compare(record: Record, model: Model, gamma: float, forward: QuasiStaticFE,
     if limits["ceiling"] is not None:
         bounded = ~noise.force_live & steady & (True if noise.force_spikes is None else ~noise.force_spikes)
         windows = ReadingWindows(record.dead_band, record.force, bounded, limits["window_std"])
-        excess = bound_excess(p.force, record.force, limits["ceiling"], limits["top"], windows)
+        excess = np.zeros(bounded.shape)
+        excess[bounded] = ReadingBounds(record.force, limits["ceiling"], limits["top"], windows,
+                                        np.flatnonzero(bounded)).excess(p.force)
         rf = np.where(bounded & (excess != 0.0), excess, rf)
     counted = np.isfinite(rf)
     force_floor = np.broadcast_to(noise.force_floor, noise.force_std.shape)

@@ -12,6 +12,7 @@ from functools import cached_property
 import numpy as np
 from scipy.differentiate import jacobian
 from scipy.optimize import brentq, least_squares
+from scipy.sparse import csr_matrix
 from scipy.special import expit, logit
 
 from rheo_ros.experiment import StageProfile
@@ -130,8 +131,10 @@ class WholeRecordProblem:
         # The readings that bound the model: neither live nor left out.
         self._bounded = ~self._live if self.excluded is None else ~self._live & ~self.excluded[self._use]
         band = self.record.dead_band
-        self._windows = (None if self.window_std is None or band is None else
-                       ReadingWindows(band, self._force, self._bounded, self.window_std))
+        windows = (None if self.window_std is None or band is None else
+                   ReadingWindows(band, self._force, self._bounded, self.window_std))
+        self._bounds = (None if self.ceiling is None else
+                        ReadingBounds(self._force, self.ceiling, self.top, windows, np.flatnonzero(self._bounded)))
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -170,7 +173,8 @@ class WholeRecordProblem:
 
     def _at(self, params: dict[str, float]) -> tuple[Model, bool, tuple[np.ndarray, np.ndarray]]:
         """The model at ``params``, whether it reads every sample, and the times to predict."""
-        model = self.model.with_parameters({k: v for k, v in params.items() if k in self.model.parameters})
+        own = self.model.parameters   # once: each look builds the dict anew
+        model = self.model.with_parameters({k: v for k, v in params.items() if k in own})
         # An effect with memory reads every sample's past: it gets every reading's time,
         # not only the fitted ones (a gap at a phase boundary would hold its input there).
         every = bool(model.memory)
@@ -233,10 +237,10 @@ class WholeRecordProblem:
         """The residual vector: live force readings, markers, the clocks' prior, the bounds."""
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
         parts = [rf.ravel(), rm.ravel(), prior]
-        if self.ceiling is not None:
+        if self._bounds is not None:
             with np.errstate(over="ignore", invalid="ignore"):
-                excess = bound_excess(p.force, self._force, self.ceiling, self.top, self._windows)
-                parts.append((excess / self.force_std)[self._bounded])
+                std = np.broadcast_to(self.force_std, (self._bounds.nodes,))[self._bounds.node]
+                parts.append(self._bounds.excess(p.force) / std)
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
@@ -325,6 +329,23 @@ class ReadingWindows:
         margin = 3.0 * np.maximum(spread, LONG_MARGIN_FLOOR * std0[long_seg]) / np.sqrt(self._long_size)
         self.long_floor = mean - excess[long_seg] - margin
         self.long_ceiling = mean + deficit[long_seg] + margin
+        # Both sizes' windows as the rows of one 0/1 matrix: a fit sums the model's forces
+        # over them at every evaluation, one sparse product instead of four bincounts (a
+        # row adds its readings in order from zero, as bincount does: the same sums).
+        n = self._size.size
+        rows = np.concatenate([self._label, n + self._long_label])
+        entries = np.tile(np.arange(seg.size), 2)
+        order = np.argsort(rows, kind="stable")
+        self._sums = csr_matrix((np.ones(rows.size), (rows[order], entries[order])),
+                                shape=(n + self._long_size.size, seg.size))
+        self._all_size = np.concatenate([self._size, self._long_size])
+        self._all_floor = np.concatenate([self.floor, self.long_floor])
+        self._all_ceiling = np.concatenate([self.ceiling, self.long_ceiling])
+
+    @property
+    def flat(self) -> np.ndarray:
+        """The readings in a window: flat (row-major) indices into (T, nodes), in the windows' order."""
+        return self._t * self.shape[1] + self._seg
 
     @staticmethod
     def _windows(seg: np.ndarray, nodes: int, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -339,12 +360,14 @@ class ReadingWindows:
         window_seg[label] = seg
         return label, count, window_seg
 
-    @staticmethod
-    def _outside(f: np.ndarray, label: np.ndarray, size: np.ndarray, floor: np.ndarray,
-                 ceiling: np.ndarray) -> np.ndarray:
-        mean = np.bincount(label, weights=f) / size
-        pressing = np.bincount(label, weights=np.maximum(f, 0.0)) / size
-        return (np.maximum(mean - ceiling, 0.0) + np.minimum(pressing - floor, 0.0))[label]
+    def entry_excess(self, f: np.ndarray) -> np.ndarray:
+        """``excess`` at the readings in a window only, from the model's forces there
+        (``f``, in the order of ``flat``)."""
+        sums = self._sums @ np.column_stack([f, np.maximum(f, 0.0)])
+        mean, pressing = sums[:, 0] / self._all_size, sums[:, 1] / self._all_size
+        outside = np.maximum(mean - self._all_ceiling, 0.0) + np.minimum(pressing - self._all_floor, 0.0)
+        short, long = outside[self._label], outside[self._size.size + self._long_label]
+        return np.where(np.abs(long) > np.abs(short), long, short)
 
     def excess(self, force: np.ndarray) -> np.ndarray:
         """(T, nodes) N: at each reading in a window, how far the window's mean model force
@@ -353,24 +376,44 @@ class ReadingWindows:
         pull counts as zero force (tension reads nothing)."""
         out = np.zeros(self.shape)
         if self._t.size:
-            f = force[self._t, self._seg]
-            short = self._outside(f, self._label, self._size, self.floor, self.ceiling)
-            long = self._outside(f, self._long_label, self._long_size, self.long_floor, self.long_ceiling)
-            out[self._t, self._seg] = np.where(np.abs(long) > np.abs(short), long, short)
+            out[self._t, self._seg] = self.entry_excess(force[self._t, self._seg])
         return out
 
 
-def bound_excess(force: np.ndarray, readings: np.ndarray, ceiling: np.ndarray, top: np.ndarray | None,
-                 windows: ReadingWindows | None) -> np.ndarray:
-    """(T, nodes) N: how far model forces lie outside what readings that are not live
-    stand for: above the ``ceiling`` (positive), below a saturated reading's ``top``
-    (negative), outside their window's range (``ReadingWindows.excess``); 0 within them."""
-    excess = np.maximum(force - ceiling, 0.0)
-    if windows is not None:
-        excess = excess + windows.excess(force)
-    if top is not None:   # a saturated reading: the force was at least the top
-        excess = np.where(readings > top, np.minimum(force - top, 0.0), excess)
-    return excess
+class ReadingBounds:
+    """What the readings that are not live say of the force, at the readings ``at`` (flat,
+    row-major indices into (T, nodes)): :meth:`excess`. Laid out once for a record: a fit
+    asks it at every evaluation, for those readings alone.
+
+    Args:
+        readings: (T, nodes) N; ceiling: (nodes,) N, the live threshold; top: (nodes,) N,
+            the top of the live range (None: no saturation); windows: the windows of
+            readings under the threshold (None: none), each of them among ``at``.
+    """
+
+    def __init__(self, readings: np.ndarray, ceiling: np.ndarray, top: np.ndarray | None,
+                 windows: ReadingWindows | None, at: np.ndarray) -> None:
+        self.at, self.nodes = at, readings.shape[1]
+        self.node = node = at % self.nodes
+        self._ceiling = np.asarray(ceiling, float)[node]
+        self._windows = windows
+        self._in_window = None if windows is None else np.searchsorted(at, windows.flat)
+        self._window_flat = None if windows is None else windows.flat
+        self._saturated = None if top is None else readings.ravel()[at] > top[node]
+        self._top = None if top is None else top[node]
+
+    def excess(self, force: np.ndarray) -> np.ndarray:
+        """(at,) N: how far model forces (T, nodes) lie outside what the readings stand for:
+        above the ``ceiling`` (positive), below a saturated reading's ``top`` (negative),
+        outside their window's range (``ReadingWindows.excess``); 0 within them."""
+        flat = force.ravel()
+        f = flat[self.at]
+        excess = np.maximum(f - self._ceiling, 0.0)
+        if self._windows is not None and self._in_window.size:
+            excess[self._in_window] += self._windows.entry_excess(flat[self._window_flat])
+        if self._top is not None:   # a saturated reading: the force was at least the top
+            excess = np.where(self._saturated, np.minimum(f - self._top, 0.0), excess)
+        return excess
 
 
 def live_top(record: Record, force_std: np.ndarray) -> np.ndarray | None:

@@ -113,7 +113,7 @@ def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if band is not None:
             std0 = np.nan_to_num(np.where(np.isfinite(std), std, from_cells), nan=0.0)
             # The top by each reading: one above it is clipped and bounds the force from below
-            # (``fit.bound_excess``); one below it, in a window the median puts above, would
+            # (``fit.ReadingBounds``); one below it, in a window the median puts above, would
             # be neither a measure nor a bound of the dead band's side (seen: E 8 std low).
             # At saturation itself never (a segment whose noise is not known has no margin).
             live = (_most_of_window(force >= band.threshold(std0)) & (force <= band.top(std0))
