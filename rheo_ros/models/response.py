@@ -146,9 +146,16 @@ def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tup
     augmented matrix exponential.
     """
     n = A.shape[0]
-    # One state (the three-element model): its own mode, what LAPACK's eig gives it
-    # (eigenvector 1) without the call, the cache lookup and the checks (~70 us a new model).
-    modes = (A[0], _ONE, _ONE) if n == 1 else _modes(A.tobytes(), A.shape, A.dtype.str)
+    if n == 1:
+        # One state (the three-element model): its own mode, without the eigen-decomposition,
+        # its cache and the products with its eigenvector (1: what LAPACK's eig gives it),
+        # the same numbers at half the cost of a response.
+        lam = float(A[0, 0])
+        lt = taus * lam
+        with np.errstate(divide="ignore", invalid="ignore"):
+            phi = np.where(np.abs(lt) < 1e-8, taus * (1 + lt / 2), np.expm1(lt) / lam)
+        return (np.exp(lt) * x[0])[:, None], (phi * b[0])[:, None]
+    modes = _modes(A.tobytes(), A.shape, A.dtype.str)
     if modes is not None:
         lam, V, Vinv = modes
         lt = np.outer(taus, lam)
@@ -163,10 +170,6 @@ def _flows(A: np.ndarray, taus: np.ndarray, x: np.ndarray, b: np.ndarray) -> tup
     with np.errstate(over="ignore", invalid="ignore"):
         big = expm(aug[None] * taus[:, None, None])
         return big[:, :n, :n] @ x, big[:, :n, n:] @ b
-
-
-_ONE = np.ones((1, 1))
-_ONE.setflags(write=False)
 
 
 @lru_cache(maxsize=256)
@@ -243,7 +246,8 @@ def _piece(ss: StateSpace, x: np.ndarray, eps: float, rate: float | None, start:
     """Fill ``stress`` and ``strain`` at the times of ``t`` in [start, end) (and after
     ``end`` when ``last``) driven at ``rate`` from state ``(x, eps)``, or free (``rate``
     None); return the state at ``end`` (the same state for an open end)."""
-    mask = (t >= start) & ((t < end) | (last & (t >= end)))
+    # ``t`` is sorted: the piece's times are one run of it.
+    mask = slice(np.searchsorted(t, start), t.size if last else np.searchsorted(t, end))
     taus = t[mask] - start
     tau_end = np.array([end - start]) if np.isfinite(end) else np.zeros(0)
     every = np.concatenate([taus, tau_end])
