@@ -388,3 +388,32 @@ def test_the_integrated_voigt_spring_follows_many_pushes_as_the_exact_response()
     assert exact.t_release > three.pushes[1].t_end       # the last push's release
     assert np.max(np.abs(integrated.stress - exact.stress)) < 1e-9 * np.max(exact.stress)
     assert np.max(np.abs(integrated.strain - exact.strain)) < 1e-9 * np.max(exact.strain)
+
+
+def test_a_models_realisation_is_scipys_controller_canonical_form_exactly():
+    """``StateSpace.of`` writes tf2ss's controller canonical form itself where tf2ss would
+    leave the modulus's polynomials as they are (its own checks cost as much as a fit's
+    response): on 600 random networks over twelve decades of parameters, the same A, B, C
+    and D to the last bit as ``scipy.signal.tf2ss``."""
+    from scipy.signal import tf2ss
+
+    from rheo_ros.models.response import StateSpace
+
+    rng = np.random.default_rng(3)
+    compared = 0
+    for _ in range(100):
+        E, c1, c2, E1, c3 = 10 ** rng.uniform(-3, 9, 5)
+        for element in (three_element(E, c1, c2), maxwell(E, c1), voigt(E, c1),
+                        generalized_maxwell(E, [(E1, c3), (c1, c2)]),
+                        Parallel((three_element(E, c1, c2), maxwell(E1, c3, ("E_1", "c_1")))),
+                        Series((voigt(E, c1, ("a", "b")), voigt(E1, c3, ("c", "d"))))):
+            ss = StateSpace.of(element)
+            q = element.modulus()
+            num, den = q.num, np.append(q.den, 0.0)
+            while num.size > 1 and num[-1] == 0.0 and den[-1] == 0.0:
+                num, den = num[:-1], den[:-1]
+            A, B, C, D = tf2ss(num, den)
+            assert np.array_equal(ss.A, A) and np.array_equal(ss.B, B[:, 0]) and np.array_equal(ss.C, C[0])
+            assert ss.D == float(D[0, 0])
+            compared += 1
+    assert compared == 600

@@ -126,12 +126,22 @@ def _realised(element: Element) -> StateSpace:
         num, den = num[:-1], den[:-1]
     if num.size > den.size:
         raise ValueError("modulus grows faster than a dashpot: not a spring-dashpot network")
-    # scipy.signal costs ~1 s to import (its array-API wrappers): only where a model is
-    # solved, not in every process that imports the package (the stage, the recorder).
-    from scipy.signal import tf2ss
+    if den.size > 1 and den[0] == 1.0 and abs(num[0]) > 1e-14:
+        # scipy.signal.tf2ss's controller canonical form, term for term, for the monic,
+        # trimmed polynomials a modulus has (tf2ss's normalisation leaves them as they are):
+        # its checks cost as much as the rest of a new model's response, which a fit's
+        # Jacobian asks for every column that moves an element (``test_models``).
+        k = den.size
+        num = np.concatenate([np.zeros(k - num.size), num])
+        A = np.vstack([-den[1:], np.eye(k - 2, k - 1)])
+        out = StateSpace(A, np.eye(k - 1, 1)[:, 0], num[1:] - np.outer(num[:1], den[1:])[0], float(num[0]))
+    else:
+        # scipy.signal costs ~1 s to import (its array-API wrappers): only where a model is
+        # solved, not in every process that imports the package (the stage, the recorder).
+        from scipy.signal import tf2ss
 
-    A, B, C, D = tf2ss(num, den)
-    out = StateSpace(A, B[:, 0], C[0], float(D[0, 0]))
+        A, B, C, D = tf2ss(num, den)
+        out = StateSpace(A, B[:, 0], C[0], float(D[0, 0]))
     for a in (out.A, out.B, out.C):
         a.setflags(write=False)
     return out
