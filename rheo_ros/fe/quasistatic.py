@@ -87,12 +87,18 @@ class Dynamics:
 class Prediction:
     """``force`` (T, n_bottom) in N at the force times; ``displacement`` (Tm, N, 2) in m
     at the marker times. Where no effect moves the markers, ``displacement`` is
-    ``depth`` (Tm,) m times ``shape`` (N, 2) m/m, and both are given (else None)."""
+    ``depth`` (Tm,) m times ``shape`` (N, 2) m/m, and both are given (else None), and
+    ``markers`` is None: the product is formed on first look (a fit's solver works on
+    depth and shape alone, and forming it was an eighth of an evaluation)."""
 
     force: np.ndarray
-    displacement: np.ndarray
+    markers: np.ndarray | None = None
     depth: np.ndarray | None = None
     shape: np.ndarray | None = None
+
+    @cached_property
+    def displacement(self) -> np.ndarray:
+        return self.markers if self.markers is not None else self.depth[:, None, None] * self.shape[None]
 
 
 class QuasiStaticFE:
@@ -338,7 +344,7 @@ class QuasiStaticFE:
             release = None if r.t_release is None else Release(r.t_release, scaled[-1] * shape.bottom_force)
             force = model.measured_force(force_t, np.outer(scaled[:nf], shape.bottom_force), release)
             at_markers = depth[nf : nf + nm]
-            disp = model.measured_markers(marker_t, at_markers[:, None, None] * shape.displacement[None])
-        if model.moves_markers:
-            return Prediction(force, disp)
-        return Prediction(force, disp, at_markers, shape.displacement)
+            if model.moves_markers:
+                return Prediction(force, model.measured_markers(marker_t, at_markers[:, None, None]
+                                                                * shape.displacement[None]))
+        return Prediction(force, None, at_markers, shape.displacement)

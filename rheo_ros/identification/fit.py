@@ -135,6 +135,10 @@ class WholeRecordProblem:
                    ReadingWindows(band, self._force, self._bounded, self.window_std))
         self._bounds = (None if self.ceiling is None else
                         ReadingBounds(self._force, self.ceiling, self.top, windows, np.flatnonzero(self._bounded)))
+        # The live readings as flat (row-major) indices: a fit takes them at every evaluation.
+        self._live_at = np.flatnonzero(self._live)
+        self._live_node = self._live_at % self._force.shape[1]
+        self._live_force = self._force.ravel()[self._live_at]
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -194,11 +198,16 @@ class WholeRecordProblem:
         pred = self.forward.dynamic_predict(model, params["gamma"], self.profile, *times)
         return replace(pred, force=pred.force[self._use]) if every and pred is not None else pred
 
+    def _force_residuals(self, force: np.ndarray) -> np.ndarray:
+        """The live readings' weighted residuals, row-major (in the order a boolean mask takes them)."""
+        std = np.broadcast_to(self.force_std, (self._force.shape[1],))[self._live_node]
+        return (force.ravel()[self._live_at] - self._live_force) / std
+
     def residuals(self, params: dict[str, float], p: Prediction | None = None) -> np.ndarray:
         """The weighted residuals at ``params`` (of the prediction ``p`` when given)."""
         p = self.predict(params) if p is None else p
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
-            rf = ((p.force - self._force) / self.force_std)[self._live]
+            rf = self._force_residuals(p.force)
             rm = p.displacement - self._disp
             rm = (rm - rm.mean(axis=0)) / self.marker_std
         return self._assemble(params, p, rf, rm)
@@ -216,7 +225,7 @@ class WholeRecordProblem:
         span, inside, outside = reduced
         p = self.predict(params)
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
-            rf = ((p.force - self._force) / self.force_std)[self._live]
+            rf = self._force_residuals(p.force)
             depth = p.depth - p.depth.mean()
             rm = (np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std
         return self._assemble(params, p, rf, np.append(rm.ravel(), outside / self.marker_std))
