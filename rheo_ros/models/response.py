@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import LSODA, solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
@@ -346,11 +346,28 @@ def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
 # The nonlinear response feeds finite-difference Jacobians (steps ~1.5e-8 relative): its
 # integration error must sit far below that, so its parameter dependence is smooth.
 ODE_RTOL = 1e-12
-ODE_METHOD = "LSODA"   # switches to BDF where the spring grows stiff (a fit's trial of a huge k)
 # Steps a segment may take: a fit's wild trial can ask for millions at ODE_RTOL, each
 # keeping its dense-output interpolant (seen: 22 GB before the machine ran out); the
 # trial is then a failure (NaN stress: a large residual) like a diverging one.
 ODE_MAX_STEPS = 100_000
+
+
+class _BudgetedLSODA(LSODA):
+    """scipy's LSODA (it switches to BDF where the spring grows stiff: a fit's trial of a
+    huge k) that fails at its ``ODE_MAX_STEPS``-th step: a fit's
+    wild trial asks for millions of steps, each keeping its dense output (``solve_ivp``
+    has no cap of its own; a terminal event counting the steps cost a sixth of a
+    stiffening's fit, evaluated after every step)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.steps = 0
+
+    def _step_impl(self):
+        self.steps += 1
+        if self.steps >= ODE_MAX_STEPS:
+            return False, f"out of steps ({ODE_MAX_STEPS})"
+        return super()._step_impl()
 
 
 def three_element_and_arms(element: Element) -> tuple[tuple[float, float, float], list[tuple[float, float]]]:
@@ -390,7 +407,7 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     """As :func:`respond`, with the base's Voigt spring nonlinear: its stress is
     ``E height spring(u_v / height)`` at Voigt displacement ``u_v`` (``spring(eps)``:
     stress per unit E at nominal strain, ``eps`` to first order). No closed form exists,
-    so scipy's ``solve_ivp`` (DOP853, ``ODE_RTOL``) integrates the states (Voigt
+    so scipy's ``solve_ivp`` (LSODA, ``ODE_RTOL``) integrates the states (Voigt
     displacement, displacement, each arm's stress) segment by segment.
 
     Driven: ``sigma3 = (c1 c2 rate + c2 f) / (c1 + c2)``, ``u_v' = (sigma3 - f) / c1``;
@@ -407,16 +424,22 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     def voigt_force(uv: float) -> float:
         return E * height * float(spring(np.array([uv / height]))[0])
 
+    # The solver calls this a million times in a stiffening's fit: Python floats, one array.
+    c1_, c2_, n = float(c1), float(c2), 2 + len(arms)
+
     def rhs(_t: float, y: np.ndarray, rate: float | None) -> np.ndarray:
-        uv, arm = y[0], y[2:]
-        f = voigt_force(uv)
+        arm = y[2:]
+        f = voigt_force(float(y[0]))
+        out = np.empty(n)
         if rate is None:
             s3 = -float(arm.sum())
-            du = ((c1 + c2) * s3 - c2 * f) / (c1 * c2)
+            du = ((c1_ + c2_) * s3 - c2_ * f) / (c1_ * c2_)
         else:
-            s3 = (c1 * c2 * rate + c2 * f) / (c1 + c2)
+            s3 = (c1_ * c2_ * rate + c2_ * f) / (c1_ + c2_)
             du = rate
-        return np.concatenate([[(s3 - f) / c1, du], k * du - rate_k * arm])
+        out[0], out[1] = (s3 - f) / c1_, du
+        out[2:] = k * du - rate_k * arm
+        return out
 
     def total_stress(y: np.ndarray, rate: float | None) -> np.ndarray:
         if rate is None:
@@ -431,32 +454,15 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     let_go, t_release = False, None
 
     def integrate(rate: float | None, span: tuple[float, float], y0: np.ndarray, events=None):
-        calls, last, cut = 0, span[0], None
-
-        def budget(tt: float, yy: np.ndarray, _r: float | None) -> float:
-            # Positive while steps are left (called once a step, a few more per located
-            # event); then a root midway into the step that ran out, where the solver
-            # stops (continuous there, as its root finder needs).
-            nonlocal calls, last, cut
-            if cut is None:
-                calls += 1
-                if calls <= ODE_MAX_STEPS:
-                    last = tt
-                    return 1.0
-                cut = 0.5 * (last + tt)
-            return cut - tt
-        budget.terminal = True
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
             try:
-                sol = solve_ivp(rhs, span, y0, method=ODE_METHOD, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
-                                args=(rate,), dense_output=True, events=[budget, *([events] if events else [])])
+                sol = solve_ivp(rhs, span, y0, method=_BudgetedLSODA, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                                args=(rate,), dense_output=True, events=events)
             except ValueError:   # steps of zero length (a stiff trial): no dense output, a failed trial
                 return None
-        if not sol.success or sol.t_events[0].size or not np.all(np.isfinite(sol.y[:, -1])):
+        if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
             return None   # failed, or out of steps: a trial the fit rejects, never the machine's memory
-        sol.t_events, sol.y_events = sol.t_events[1:], sol.y_events[1:]   # the caller's events as it gave them
         return sol
 
     for i, seg in enumerate(program.segments):
