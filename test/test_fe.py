@@ -244,3 +244,30 @@ def test_block_steps_give_the_step_by_step_run(monkeypatch, retract_speed):
     np.testing.assert_allclose(blocks.displacement[every_tenth], steps.displacement[every_tenth], rtol=0,
                                atol=1e-9 * push.depth)
     assert np.isnan(blocks.displacement[~every_tenth]).all()
+
+
+def test_a_nonlinear_voigt_springs_response_is_solved_once_for_a_model_rebuilt_with_its_values(monkeypatch):
+    """A fit rebuilds its model at every evaluation; a Voigt-spring stiffening's response
+    is an ODE solve (``respond_voigt_spring``). Asked again with an equal model (a new
+    effect object of the same coefficient) and another Poisson ratio, the forward model
+    solves nothing and predicts the forces of a fresh solve exactly; another coefficient
+    is solved anew."""
+    import rheo_ros.fe.quasistatic as quasistatic
+    from rheo_ros.models.effects import VoigtSpringStiffening
+
+    solves = []
+    real = quasistatic.respond_voigt_spring
+    monkeypatch.setattr(quasistatic, "respond_voigt_spring", lambda *a: solves.append(1) or real(*a))
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    profile = StageProfile(keep_time=6.0, release_time=8.0)
+    t = np.linspace(0.0, profile.t_end, 400)
+    model = lambda k: Model(three_element(3e4, 3e5, 3e7), (VoigtSpringStiffening(k),))   # noqa: E731
+    forward = QuasiStaticFE(mesh)
+    first = forward.predict(model(0.8), 0.30, profile, t, t[::4])
+    again = forward.predict(model(0.8), 0.31, profile, t, t[::4])
+    assert len(solves) == 1
+    fresh = QuasiStaticFE(mesh).predict(model(0.8), 0.31, profile, t, t[::4])
+    np.testing.assert_array_equal(again.force, fresh.force)
+    assert not np.array_equal(first.force, again.force)   # the ratio did move the forces
+    forward.predict(model(0.9), 0.31, profile, t, t[::4])
+    assert len(solves) == 3   # the fresh forward model's, and the new coefficient's

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -291,15 +292,24 @@ class QuasiStaticFE:
 
     RESPONSES = 8   # kept: a Jacobian's columns, and the trial step beside them
 
-    def _response(self, element: Element, profile: StageProfile, t: np.ndarray) -> Response:
-        """``respond`` of ``element`` to ``profile``'s program at ``t``, kept for the next
-        calls with the same element, profile and times (compared whole: a key of the
-        times' checksum only finds the candidate)."""
-        key = (element, profile, t.size, zlib.crc32(t.data))
-        kept = self._responses.get(key)
+    def _response(self, element: Element, profile: StageProfile, t: np.ndarray,
+                  spring: Callable[[np.ndarray], np.ndarray] | None = None) -> Response:
+        """``respond`` of ``element`` to ``profile``'s program at ``t`` (with a nonlinear
+        Voigt ``spring``: ``respond_voigt_spring``, an ODE solve), kept for the next calls
+        with the same element, spring, profile and times (compared whole: a key of the
+        times' checksum only finds the candidate). A spring is an effect's method: keyed by
+        the effect's value, which a fit rebuilds at every evaluation (a method compares its
+        object by identity); an effect that cannot be hashed is solved every time."""
+        law = None if spring is None else (getattr(spring, "__self__", spring), getattr(spring, "__func__", None))
+        key = (element, law, profile, t.size, zlib.crc32(t.data))
+        try:
+            kept = self._responses.get(key)
+        except TypeError:   # an unhashable user effect
+            return respond_voigt_spring(element, spring, self.mesh.height, stage_program(profile), t)
         if kept is not None and np.array_equal(kept.t, t):
             return kept
-        r = respond(element, stage_program(profile), t)
+        r = (respond(element, stage_program(profile), t) if spring is None else
+             respond_voigt_spring(element, spring, self.mesh.height, stage_program(profile), t))
         if len(self._responses) >= self.RESPONSES:
             self._responses.pop(next(iter(self._responses)), None)
         self._responses[key] = r
@@ -331,8 +341,7 @@ class QuasiStaticFE:
         t = np.concatenate([force_t, marker_t, [t_let_go]])
         order = np.argsort(t, kind="stable")
         spring = model.voigt_spring
-        r = (self._response(model.rheology(), profile, t[order]) if spring is None else
-             respond_voigt_spring(model.rheology(), spring, self.mesh.height, stage_program(profile), t[order]))
+        r = self._response(model.rheology(), profile, t[order], spring)
         scaled, depth = np.empty_like(t), np.empty_like(t)
         depth[order] = r.strain
         nf, nm = len(force_t), len(marker_t)
