@@ -271,3 +271,25 @@ def test_a_nonlinear_voigt_springs_response_is_solved_once_for_a_model_rebuilt_w
     assert not np.array_equal(first.force, again.force)   # the ratio did move the forces
     forward.predict(model(0.9), 0.31, profile, t, t[::4])
     assert len(solves) == 3   # the fresh forward model's, and the new coefficient's
+
+
+def test_a_voigt_spring_of_an_unhashable_effect_is_solved_each_time_and_right():
+    """A user's effect need not be hashable: its spring is then solved at every call, not
+    kept, and the response is the solver's own."""
+    from rheo_ros.models.response import respond_voigt_spring
+
+    class Law:
+        __hash__ = None   # an effect written as a plain, mutable class
+
+        def spring(self, eps):
+            return np.expm1(0.7 * eps) / 0.7
+
+    mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
+    profile = StageProfile(keep_time=6.0, release_time=8.0)
+    t = np.linspace(0.0, profile.t_end, 300)
+    element = three_element(3e4, 3e5, 3e7)
+    forward = QuasiStaticFE(mesh)
+    got = forward._response(element, profile, t, Law().spring)
+    want = respond_voigt_spring(element, Law().spring, mesh.height, stage_program(profile), t)
+    np.testing.assert_array_equal(got.stress, want.stress)
+    assert not forward._responses

@@ -300,16 +300,19 @@ class QuasiStaticFE:
         times' checksum only finds the candidate). A spring is an effect's method: keyed by
         the effect's value, which a fit rebuilds at every evaluation (a method compares its
         object by identity); an effect that cannot be hashed is solved every time."""
+        def solve() -> Response:
+            return (respond(element, stage_program(profile), t) if spring is None else
+                    respond_voigt_spring(element, spring, self.mesh.height, stage_program(profile), t))
+
         law = None if spring is None else (getattr(spring, "__self__", spring), getattr(spring, "__func__", None))
         key = (element, law, profile, t.size, zlib.crc32(t.data))
         try:
             kept = self._responses.get(key)
-        except TypeError:   # an unhashable user effect
-            return respond_voigt_spring(element, spring, self.mesh.height, stage_program(profile), t)
+        except TypeError:   # a user's effect or element that cannot be hashed
+            return solve()
         if kept is not None and np.array_equal(kept.t, t):
             return kept
-        r = (respond(element, stage_program(profile), t) if spring is None else
-             respond_voigt_spring(element, spring, self.mesh.height, stage_program(profile), t))
+        r = solve()
         if len(self._responses) >= self.RESPONSES:
             self._responses.pop(next(iter(self._responses)), None)
         self._responses[key] = r
