@@ -250,7 +250,7 @@ def test_a_nonlinear_voigt_springs_response_is_solved_once_for_a_model_rebuilt_w
     """A fit rebuilds its model at every evaluation; a Voigt-spring stiffening's response
     is an ODE solve (``respond_voigt_spring``). Asked again with an equal model (a new
     effect object of the same coefficient) and another Poisson ratio, the forward model
-    solves nothing and predicts the forces of a fresh solve exactly; another coefficient
+    solves nothing and predicts the forces of a fresh solve (within 1e-9 of the peak force); another coefficient
     is solved anew."""
     import rheo_ros.fe.quasistatic as quasistatic
     from rheo_ros.models.effects import VoigtSpringStiffening
@@ -267,8 +267,9 @@ def test_a_nonlinear_voigt_springs_response_is_solved_once_for_a_model_rebuilt_w
     again = forward.predict(model(0.8), 0.31, profile, t, t[::4])
     assert len(solves) == 1
     fresh = QuasiStaticFE(mesh).predict(model(0.8), 0.31, profile, t, t[::4])
-    np.testing.assert_array_equal(again.force, fresh.force)
-    assert not np.array_equal(first.force, again.force)   # the ratio did move the forces
+    peak = np.abs(fresh.force).max()
+    np.testing.assert_allclose(again.force, fresh.force, rtol=0, atol=1e-9 * peak)
+    assert np.abs(first.force - again.force).max() > 1e-4 * peak   # the ratio did move the forces
     forward.predict(model(0.9), 0.31, profile, t, t[::4])
     assert len(solves) == 3   # the fresh forward model's, and the new coefficient's
 
@@ -291,5 +292,5 @@ def test_a_voigt_spring_of_an_unhashable_effect_is_solved_each_time_and_right():
     forward = QuasiStaticFE(mesh)
     got = forward._response(element, profile, t, Law().spring)
     want = respond_voigt_spring(element, Law().spring, mesh.height, stage_program(profile), t)
-    np.testing.assert_array_equal(got.stress, want.stress)
+    np.testing.assert_allclose(got.stress, want.stress, rtol=0, atol=1e-9 * np.abs(want.stress).max())
     assert not forward._responses

@@ -139,6 +139,7 @@ class WholeRecordProblem:
         self._live_at = np.flatnonzero(self._live)
         self._live_node = self._live_at % self._force.shape[1]
         self._live_force = self._force.ravel()[self._live_at]
+        self._own = frozenset(self.model.parameters)   # the model's names: read at every evaluation
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
@@ -177,8 +178,7 @@ class WholeRecordProblem:
 
     def _at(self, params: dict[str, float]) -> tuple[Model, bool, tuple[np.ndarray, np.ndarray]]:
         """The model at ``params``, whether it reads every sample, and the times to predict."""
-        own = self.model.parameters   # once: each look builds the dict anew
-        model = self.model.with_parameters({k: v for k, v in params.items() if k in own})
+        model = self.model.with_parameters({k: v for k, v in params.items() if k in self._own})
         # An effect with memory reads every sample's past: it gets every reading's time,
         # not only the fitted ones (a gap at a phase boundary would hold its input there).
         every = bool(model.memory)
@@ -198,10 +198,13 @@ class WholeRecordProblem:
         pred = self.forward.dynamic_predict(model, params["gamma"], self.profile, *times)
         return replace(pred, force=pred.force[self._use]) if every and pred is not None else pred
 
+    def _noise_at(self, node: np.ndarray) -> np.ndarray:
+        """The force weight of each reading of segment ``node`` (flat readings' segments)."""
+        return np.broadcast_to(self.force_std, (self._force.shape[1],))[node]
+
     def _force_residuals(self, force: np.ndarray) -> np.ndarray:
         """The live readings' weighted residuals, row-major (in the order a boolean mask takes them)."""
-        std = np.broadcast_to(self.force_std, (self._force.shape[1],))[self._live_node]
-        return (force.ravel()[self._live_at] - self._live_force) / std
+        return (force.ravel()[self._live_at] - self._live_force) / self._noise_at(self._live_node)
 
     def residuals(self, params: dict[str, float], p: Prediction | None = None) -> np.ndarray:
         """The weighted residuals at ``params`` (of the prediction ``p`` when given)."""
@@ -248,8 +251,7 @@ class WholeRecordProblem:
         parts = [rf.ravel(), rm.ravel(), prior]
         if self._bounds is not None:
             with np.errstate(over="ignore", invalid="ignore"):
-                std = np.broadcast_to(self.force_std, (self._bounds.nodes,))[self._bounds.node]
-                parts.append(self._bounds.excess(p.force) / std)
+                parts.append(self._bounds.excess(p.force) / self._noise_at(self._bounds.node))
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
