@@ -258,3 +258,22 @@ def test_the_progress_bar_counts_the_candidates_and_logs_a_line_per_step_off_a_t
     assert [re.sub(r"\d+\.\d s", "T", line) for line in lines] == [
         "rheo analyze:   T  reading bag", "rheo analyze:   T  trying three_element+adhesion (2/4)",
         "rheo analyze:   T  tried three_element+sensor_drift (3/4)"]
+
+
+def test_the_analysis_is_the_same_to_the_bit_whatever_blas_threads_the_environment_asks(tmp_path):
+    """`rheo` runs BLAS on one thread (``single_threaded_blas``): the same JSON from the same
+    bag with OPENBLAS_NUM_THREADS 1 and 2 (before, two threads changed the base fit's
+    digits on this bag), so that the node's workers and `rheo analyze` compute one thing on
+    any machine."""
+    import os
+
+    outputs = []
+    for threads in ("1", "2"):
+        out_json = tmp_path / f"threads{threads}.json"
+        env = dict(os.environ, OPENBLAS_NUM_THREADS=threads, OMP_NUM_THREADS=threads)
+        run = subprocess.run([sys.executable, "-m", "rheo_ros", "analyze", str(BAGS / "clean_short_keep"),
+                              "--no-discover", "--quiet", "--json", str(out_json)],
+                             capture_output=True, text=True, timeout=600, env=env)
+        assert run.returncode == 0, run.stderr
+        outputs.append(out_json.read_bytes())
+    assert outputs[0] == outputs[1]

@@ -396,6 +396,22 @@ def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when
         worker.call("__call__", 0.0)
 
 
+def test_a_worker_process_runs_blas_on_one_thread_whatever_the_environment_asks(monkeypatch):
+    """The estimator's workers limit numpy's and scipy's OpenBLAS to one thread
+    (``single_threaded_blas``): started from an environment asking for two, each BLAS
+    library in the worker reports one."""
+    from rheo_ros.online.worker import Worker
+
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    worker = Worker(eval)   # runs an expression in the worker: there, load both libraries and ask them
+    try:
+        info = worker.call("__call__", "__import__('scipy.linalg') and __import__('threadpoolctl').threadpool_info()")
+        blas = [(i["filepath"], i["num_threads"]) for i in info if i["user_api"] == "blas"]
+    finally:
+        worker.close()
+    assert len(blas) >= 2 and {n for _, n in blas} == {1}, blas   # numpy's and scipy's
+
+
 def test_a_relaxation_too_slow_to_see_is_undetermined_on_every_replay_pass(tmp_path):
     """`rheo bench online`'s short run (2 mm, keep 2 s; relaxation time ~900 s) at the
     stamps of its first 12 replay passes: the keep and release closed forms either leave

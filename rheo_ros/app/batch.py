@@ -25,9 +25,6 @@ from rheo_ros.io.files import write_bytes_atomic
 
 # The parameters every row carries as its own column (an effect's own go to ``params``).
 BASE_PARAMETERS = ("E", "c1", "c2", "gamma")
-# Single-threaded BLAS in the workers: a worker per core, one bag each (threads would
-# fight over the cores, and change which kernels run).
-WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def is_bag(path: Path) -> bool:
@@ -211,11 +208,14 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             yield client
         return
     from rheo_ros.diagnosis.discover import default_workers
+    from rheo_ros.online.worker import SINGLE_THREADED
 
     levels = {name: logging.getLogger(name).level for name in DISTRIBUTED_LOGGERS}
     try:
+        # A worker per core, one bag each, BLAS on one thread (threads would fight over
+        # the cores, and change which kernels run).
         with LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                          dashboard_address=None, env=WORKER_ENV) as cluster, Client(cluster) as client:
+                          dashboard_address=None, env=SINGLE_THREADED) as cluster, Client(cluster) as client:
             try:
                 yield client
             finally:

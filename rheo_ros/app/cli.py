@@ -14,6 +14,7 @@ from rheo_ros.config.setup import ParamsError
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.files import write_json_atomic
 from rheo_ros.nodes.errors import GraphError
+from rheo_ros.online.worker import single_threaded_blas
 from rheo_ros.record import RecordError
 
 
@@ -452,6 +453,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    single_threaded_blas()
     try:
         return args.func(args)
     except BAD_INPUT as exc:

@@ -376,7 +376,9 @@ def from_final_displacement(
     params, rms, dropped = _solve_equations(record, curves, profile, nodes, method,
                                             settled_displacement(record, since), forward)
     final = f"final displacements averaged over {t_last - since:.3g} s"
-    if final_window is None:
+    # Following the recovery needs the Voigt time c1/E = c1 / (rate (c1 + c2)): a rate the
+    # force curves do not pin down (``rate_note``) leaves it undetermined too.
+    if final_window is None and curves.rate_rel_std <= RATE_REL_STD_LIMIT:
         # Follow the recovery to its end rather than average frames still recovering
         # (exact for the model where the average leaves e^-(release / tau) of the Voigt
         # strain), the Voigt time from the pass before: a fixed point, reached in a few.

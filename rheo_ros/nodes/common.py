@@ -20,6 +20,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from rheo_ros.config.setup import ParamsError, check_params
 from rheo_ros.config.table import PARAMETERS
+from rheo_ros.online.worker import single_threaded_blas
 
 LEVELS = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN, "ERROR": DiagnosticStatus.ERROR}
 
@@ -105,6 +106,7 @@ def run_node(make: Callable[[], Node], summary: str, executor: Callable[[], Exec
     if wants_help(sys.argv):
         print(node_help(sys.argv[0].rsplit("/", 1)[-1], summary))
         return
+    single_threaded_blas()
     with stop_on_signals() as stop:
         rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
         node = None
