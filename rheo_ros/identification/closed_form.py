@@ -480,9 +480,10 @@ def solve_node_equations(
         return lam * g_lambda + mu * g_mu, dlam * g_lambda + dmu * g_mu
 
     def unpack(x: np.ndarray) -> tuple[float, float, float]:
-        """c2, eta, gamma from the search vector (gamma searched only on plane_fe, as a
-        logistic of x[2] onto its range)."""
-        return np.exp(x[0]), np.exp(x[1]), g_lo + (g_hi - g_lo) * expit(x[2]) if search else block_gamma
+        """c2, eta, gamma from the search vector: c2 and eta as logs relative to their
+        starts, gamma (searched only on plane_fe) as a logistic of x[2] onto its range."""
+        return (c2_start * np.exp(x[0]), eta_start * np.exp(x[1]),
+                g_lo + (g_hi - g_lo) * expit(x[2]) if search else block_gamma)
 
     def residuals(x: np.ndarray) -> np.ndarray:
         nonlocal overflowed
@@ -517,15 +518,19 @@ def solve_node_equations(
     sa, sb = np.sqrt(np.mean(a**2)), np.sqrt(np.mean(b**2))
     search = block_gamma is None
     g_lo, g_hi = (-0.99, 0.4999) if forward is None else forward.TABLE_GAMMA
-    x0 = [np.log(np.median(a / g0)), np.log(np.median(b / g0))] + ([logit((0.3 - g_lo) / (g_hi - g_lo))]
-                                                                    if search else [])
+    # The starts: c2 from eq. 6's a = c2 g, then eta from b = eta (g + F_end / (r c2)) with
+    # that c2 (the F_end term dominates b where the rate is slow). The search moves in logs
+    # relative to them: MINPACK's first step is bounded by 100 x the start's norm, and
+    # absolute logs (~30 for c2) made it ~4000, out of floating-point range.
+    c2_start = float(np.median(a / g0))
+    eta_start = float(np.median(b / (g0 + F_end / (r * c2_start))))
+    x0 = [0.0, 0.0] + ([logit((0.3 - g_lo) / (g_hi - g_lo))] if search else [])
     # MINPACK (lm) with gamma kept in its range by the logistic, instead of a bounded
     # trust-region search: the same optimum, the loop in compiled code (the release's
     # closed form runs after each push within its latency budget; trf's Python loop was
     # half of it). At a bound the logistic saturates and the search stops there.
-    # Where lm's unbounded steps leave the finite range (measured once in 8 releases, on a
-    # push whose relaxation the data barely show): the trust-region search, whose steps
-    # stay within its region.
+    # Where lm's unbounded steps still leave the finite range: the trust-region search,
+    # whose steps stay within its region.
     for method in ("lm", "trf"):
         overflowed = False
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
