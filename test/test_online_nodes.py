@@ -210,8 +210,9 @@ def test_the_estimator_publishes_the_offline_diagnosis_after_release(replay):
 
 
 def test_the_estimator_reports_the_sensor_it_read_on_diagnostics(replay):
-    """/diagnostics carries the sensor model the last phase's record showed (the closed-form
-    lane builds it, off the executor's thread): the package simulator's default array, a
+    """/diagnostics carries the sensor model the last fit's record showed (the fit worker
+    builds it, off the node's interpreter and the closed forms' latency): the package
+    simulator's default array, a
     300 Pa dead band and 100 Pa of cell noise, whose mean reading exceeds a cell's pressure
     by at most 3.1 Pa (with the noise's doubt; README, Sensor)."""
     runs, _ = replay

@@ -116,9 +116,7 @@ class EstimatorNode(Node):
         self.bad = BadMessages(INPUTS, self.stale_after)
         self.last_error = ""
         self.latest: Update | None = None
-        # The last job's sensor model (``Record.sensor_json``) for /diagnostics, built by the
-        # closed-form lane after its update is out: the dead band's excess costs ~50 ms on a
-        # new noise (``cell_reading_bias``), which held the executor's messages back.
+        # The last sensor model an update brought (``Update.sensor``) for /diagnostics.
         self.sensor_model: dict | None = None
         self.open_params: dict[str, str] = {}
         self.predicted_at: dict[str, float] = {}
@@ -282,12 +280,6 @@ class EstimatorNode(Node):
                 self.fit_jobs.put((job, closed, arrival))
             elif closed is None:
                 self._failed(job, failure)
-            if job.record is not None:
-                try:
-                    self.sensor_model = job.record.sensor_json()
-                except Exception as exc:   # a figure for /diagnostics must not stop the lane
-                    self.outbox.put(("error", f"sensor model for /diagnostics: {type(exc).__name__}: {exc}"))
-                    self._wake()
         self.fit_jobs.put(None)
 
     def fit_lane(self) -> None:
@@ -350,6 +342,8 @@ class EstimatorNode(Node):
                                            update.pool.names, update.pool.values, np.sqrt(np.diag(
                                                update.pool.covariance)))))
                 continue
+            if update.sensor is not None:
+                self.sensor_model = update.sensor
             self.estimates.publish(estimate_message(self.types, update))
             kind = "whole_record" if update.method == "whole_record" else "closed_form"
             self.latency[kind].append(time.perf_counter() - arrival)

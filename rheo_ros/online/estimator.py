@@ -89,6 +89,11 @@ class Update:
     final: bool = False             # the experiment's last update (after release: the fit, or the
                                     # closed form when the estimator does not fit)
     interim: bool = False           # a release still going on (its message says so too)
+    # The sensor model its record was read with (``Record.sensor_json``, /diagnostics), on
+    # the fit lane's updates (or the closed forms' where the node does not fit): a new
+    # noise's dead-band excess costs tens of ms, which the fit computes anyway and the
+    # closed form's latency cannot spare.
+    sensor: dict | None = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -388,6 +393,7 @@ class PhaseIdentifier:
             values=values, covariance=cov, rmse_force=rmse, samples=int(rec.force_t.size),
             undetermined=tuple(open_), reasons=tuple(open_.values()), message=message,
             final=job.final and (est.method == "whole_record" or not self.config.fit), interim=job.interim,
+            sensor=rec.sensor_json() if est.method == "whole_record" or not self.config.fit else None,
         )
 
 
