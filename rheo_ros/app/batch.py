@@ -91,7 +91,12 @@ def analyze_bag(job: BagJob) -> list[dict[str, Any]]:
     exception's last line for a failure of the package (with its type)."""
     from rheo_ros.app.analyze import analyze, write_outputs
     from rheo_ros.app.cli import BAD_INPUT, error_line
+    from rheo_ros.online.worker import single_threaded_blas
 
+    # In the worker, whatever started it (a local cluster, or `dask worker` on another
+    # machine): the same bits as `rheo analyze` of the bag, and no BLAS threads fighting
+    # the other workers for the cores.
+    single_threaded_blas()
     try:
         result = analyze(job.bag, effects=job.effects, params_file=job.params_file,
                          discover_effects=job.discover, workers=1)
@@ -208,14 +213,12 @@ def dask_client(scheduler: str | None = None, workers: int | None = None) -> Ite
             yield client
         return
     from rheo_ros.diagnosis.discover import default_workers
-    from rheo_ros.online.worker import SINGLE_THREADED
 
     levels = {name: logging.getLogger(name).level for name in DISTRIBUTED_LOGGERS}
     try:
-        # A worker per core, one bag each, BLAS on one thread (threads would fight over
-        # the cores, and change which kernels run).
+        # A worker per core, one bag each (its BLAS on one thread: ``analyze_bag``).
         with LocalCluster(n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                          dashboard_address=None, env=SINGLE_THREADED) as cluster, Client(cluster) as client:
+                          dashboard_address=None) as cluster, Client(cluster) as client:
             try:
                 yield client
             finally:

@@ -358,7 +358,8 @@ def from_final_displacement(
             recovery and its end taken (``recovered_displacement``), and the equations
             solved again, RECOVERY_PASSES times (the paper reads one final frame after
             full recovery; following the recovery needs no full recovery and divides
-            the marker noise by the root of all the release's frames).
+            the marker noise by the root of all the release's frames), where the force
+            curves pin the rate down (``RATE_REL_STD_LIMIT``: the Voigt time needs it).
         forward: the converged forward model (``Setup.forward_model()``) for the force
             the markers' displacement implies; ``None``: the paper's ``J u`` on the
             marker grid (its own mesh: Tables II-IV).
@@ -526,7 +527,12 @@ def solve_node_equations(
     # relative to them: MINPACK's first step is bounded by 100 x the start's norm, and
     # absolute logs (~30 for c2) made it ~4000, out of floating-point range.
     c2_start = float(np.median(a / g0))
-    eta_start = float(np.median(b / (g0 + F_end / (r * c2_start))))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta_start = float(np.median(b / (g0 + F_end / (r * c2_start))))
+    if not (np.isfinite(eta_start) and eta_start > 0.0):
+        # A keep-end force within the noise, negative at a node, can turn the sign: the
+        # search keeps its start's sign, so b = eta g's start (positive: usable nodes).
+        eta_start = float(np.median(b / g0))
     x0 = [0.0, 0.0] + ([logit((0.3 - g_lo) / (g_hi - g_lo))] if search else [])
     # MINPACK (lm) with gamma kept in its range by the logistic, instead of a bounded
     # trust-region search: the same optimum, the loop in compiled code (the release's

@@ -387,13 +387,19 @@ class PhaseIdentifier:
         values, cov = np.array([shown.params[n] for n in names]), shown.covariance
         interim = "interim: the release still goes on; " if job.interim else ""
         message = "; ".join(filter(None, [job.warning(), interim + est.message]))
+        last_lane = est.method == "whole_record" or not self.config.fit
+        sensor = None
+        if last_lane:
+            try:
+                sensor = rec.sensor_json()
+            except (ValueError, ArithmeticError) as exc:   # a figure for /diagnostics must not cost the estimate
+                message = f"{message}; the sensor model for /diagnostics failed: {exc}"
         return Update(
             experiment=e.experiment, phase=e.name, stamp=float(rec.force_t[-1]),
             model="three_element", effects=(), method=est.method, equations=est.equations, names=names,
             values=values, covariance=cov, rmse_force=rmse, samples=int(rec.force_t.size),
             undetermined=tuple(open_), reasons=tuple(open_.values()), message=message,
-            final=job.final and (est.method == "whole_record" or not self.config.fit), interim=job.interim,
-            sensor=rec.sensor_json() if est.method == "whole_record" or not self.config.fit else None,
+            final=job.final and last_lane, interim=job.interim, sensor=sensor,
         )
 
 

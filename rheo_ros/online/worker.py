@@ -17,9 +17,6 @@ import signal
 import time
 from typing import Any
 
-# For a Dask worker, which reads it from its environment as it starts.
-SINGLE_THREADED = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
 
 def single_threaded_blas() -> None:
     """BLAS (numpy's and scipy's OpenBLAS) on one thread in this process and those it
