@@ -47,9 +47,10 @@ def test_every_default_passes_its_own_check():
 
 def test_the_tuning_dataclasses_are_the_tables_rows():
     """Field x of each is the parameter <prefix>.x, defaults included; the estimator's
-    diagnostics_period is the node's alone."""
+    diagnostics_period and closed_form_priority are the node's alone."""
     for cls, prefix, node_only in ((SegmenterConfig, "segmenter", set()),
-                                   (EstimatorConfig, "estimator", {"estimator.diagnostics_period"})):
+                                   (EstimatorConfig, "estimator", {"estimator.diagnostics_period",
+                                                                   "estimator.closed_form_priority"})):
         assert {f"{prefix}.{f.name}" for f in fields(cls)} | node_only == {n for n in NAMES if n.startswith(prefix)}
         assert {f.name: f.default for f in fields(cls)} == {f.name: default(f"{prefix}.{f.name}") for f in fields(cls)}
     setup = Setup(dict(DEFAULTS))

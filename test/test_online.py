@@ -396,6 +396,30 @@ def test_a_worker_process_returns_results_raises_errors_and_replaces_itself_when
         worker.call("__call__", 0.0)
 
 
+def test_a_worker_asked_for_a_realtime_priority_runs_under_sched_fifo_or_says_why_not():
+    """``estimator.closed_form_priority``: the closed-form worker under SCHED_FIFO at the
+    priority asked (where the process may: root, CAP_SYS_NICE or an rtprio limit), else
+    under normal scheduling with the refusal said (``Worker.refused``, on /diagnostics);
+    0 leaves it as it is. Each branch checks the process's own scheduling."""
+    import os
+    import time
+
+    from rheo_ros.online.worker import Worker
+
+    for asked in (0, 7):
+        worker = Worker(time.sleep, realtime=asked)
+        try:
+            policy, priority = os.sched_getscheduler(worker.process.pid), os.sched_getparam(worker.process.pid)
+            assert worker.call("__call__", 0.0) is None
+        finally:
+            worker.close()
+        if asked and not worker.refused:
+            assert (policy, priority.sched_priority) == (os.SCHED_FIFO, 7)
+        else:
+            assert policy == os.SCHED_OTHER and priority.sched_priority == 0
+            assert worker.refused == "" if not asked else "SCHED_FIFO) refused" in worker.refused, worker.refused
+
+
 @pytest.mark.skipif(len(__import__("os").sched_getaffinity(0)) < 2,
                     reason="OpenBLAS runs one thread on one core whatever is asked")
 def test_a_worker_process_runs_blas_on_one_thread_whatever_the_environment_asks(monkeypatch):

@@ -345,7 +345,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench_command("noise", "bias, std and Cramer-Rao bound under measurement noise",
                   replicates=(int, 200, "noisy replicates"), seed=seed)
     bench_command("online", "estimator node over DDS: latency per phase, idle CPU, memory over many experiments",
-                  experiments=(int, 100, "experiments replayed"), rate=(float, 10.0, "replay speed, x real time"))
+                  experiments=(int, 100, "experiments replayed"), rate=(float, 10.0, "replay speed, x real time"),
+                  closed_form_priority=(int, 0, "the estimator's estimator.closed_form_priority (SCHED_FIFO 1-99 of "
+                                                "its closed-form worker; 0: normal scheduling)"))
     bench_command("calibration", "reported std against the error over noise seeds through the sensor path",
                   replicates=(int, 100, "noise seeds per case"), seed=(int, 0, "first seed"))
     bench_command("diagnosis", "exact-set accuracy of the model-discovery loop over generated bags hiding 0, 1 or 2 "

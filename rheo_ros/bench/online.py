@@ -58,7 +58,8 @@ def _rss_mb(pid: int) -> float:
     return total
 
 
-def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[str, Any]:
+def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0, closed_form_priority: int = 0
+        ) -> dict[str, Any]:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -70,8 +71,9 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
     params = {**load_params(None), **SHORT_RUN}
     simulate_to_bag(Setup(params), 0, tmp / "bag")
     bin_dir = Path(sys.executable).parent
-    est = subprocess.Popen([str(bin_dir / "estimator")], env=env, stdout=(tmp / "estimator.log").open("w"),
-                           stderr=subprocess.STDOUT)
+    est = subprocess.Popen([str(bin_dir / "estimator"), "--ros-args", "-p",
+                            f"estimator.closed_form_priority:={closed_form_priority}"],
+                           env=env, stdout=(tmp / "estimator.log").open("w"), stderr=subprocess.STDOUT)
     rclpy.init()
     node = rclpy.create_node("bench_online")
     finals: list[float] = []
@@ -116,6 +118,7 @@ def run(experiments: int = 100, rate: float = 10.0, idle: float = 10.0) -> dict[
             rclpy.spin_once(node, timeout_sec=0.1)
         return {
             "experiments": experiments, "completed": len(finals), "rate_x_realtime": rate,
+            "closed_form_priority": closed_form_priority,
             "experiment_s": Setup(params).profile.t_end, "wall_s": time.monotonic() - start,
             "idle_cpu_share": idle_share, "rss_mb_start": rss_start, "rss_mb": rss,
             "latency_ms": {f"{k} {q}": float(status.get(f"latency {k} {q} ms", "nan"))
@@ -136,7 +139,8 @@ def format_table(r: dict[str, Any]) -> str:
     lat = r["latency_ms"]
     return "\n".join([
         f"estimator node over DDS: {r['completed']}/{r['experiments']} experiments of {r['experiment_s']:.0f} s "
-        f"replayed at {r['rate_x_realtime']:g} x real time in {r['wall_s']:.0f} s",
+        f"replayed at {r['rate_x_realtime']:g} x real time in {r['wall_s']:.0f} s (estimator.closed_form_priority "
+        f"{r['closed_form_priority']}: " + ("normal scheduling)" if not r["closed_form_priority"] else "SCHED_FIFO)"),
         f"  latency, last message of a phase -> estimate published (node clock, last "
         f"{r['latency_n']['closed_form']} updates each):",
         f"    closed form (paper):    p50 {lat['closed_form p50']:.1f} ms, p99 {lat['closed_form p99']:.1f} ms "

@@ -198,6 +198,11 @@ PARAMETERS: tuple[Parameter, ...] = (
       "s of data between interim release updates while a release goes on (the specimen still recovering); "
       "0: none", non_negative),
     P("estimator.diagnostics_period", 1.0, "s between /diagnostics messages", positive),
+    P("estimator.closed_form_priority", 0,
+      "SCHED_FIFO priority (1-99) of the closed-form worker process, so that a phase's closed form does not wait "
+      "for a core behind message intake and the fits on a loaded computer (a real-time priority: needs "
+      "CAP_SYS_NICE or an rtprio limit; refused, the worker keeps normal scheduling and /diagnostics says so); "
+      "0: normal scheduling", count(0, "priority", 99)),
     P("estimator.diagnose", True,
       "after release, find the effect the three-element model misses (rheo analyze's loop, rheo_ros.diagnosis) "
       "and publish the verdict on /rheo/diagnosis"),

@@ -26,7 +26,8 @@ class SegmenterConfig:
 @dataclass(frozen=True)
 class EstimatorConfig:
     """Tuning of the online identification: field ``x`` is the parameter ``estimator.x``
-    (the node's own ``estimator.diagnostics_period`` is not the core's)."""
+    (the node's own ``estimator.diagnostics_period`` and ``estimator.closed_form_priority``
+    are not the core's)."""
 
     fit: bool = default("estimator.fit")
     undetermined_std: float = default("estimator.undetermined_std")

@@ -36,14 +36,28 @@ class WorkerDied(RuntimeError):
     the next call."""
 
 
-def _serve(conn, target: Any, niceness: int) -> None:
+def _scheduled(realtime: int) -> str:
+    """This process under SCHED_FIFO at priority ``realtime`` (0: left as it is); what
+    stood in the way, or ""."""
+    if realtime <= 0:
+        return ""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(realtime))
+    except (PermissionError, OSError, AttributeError) as exc:   # no CAP_SYS_NICE, no rtprio limit; not Linux
+        return (f"real-time priority {realtime} (SCHED_FIFO) refused ({exc.__class__.__name__}: "
+                f"{getattr(exc, 'strerror', None) or exc}): normal scheduling")
+    return ""
+
+
+def _serve(conn, target: Any, niceness: int, realtime: int = 0) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle; it stops us
     single_threaded_blas()
     os.nice(niceness)
+    refused = _scheduled(realtime)
     prepare = getattr(target, "prepare", None)
     if prepare is not None:
         prepare()
-    conn.send(("ready", None, 0.0))
+    conn.send(("ready", refused, 0.0))
     while True:
         try:
             request = conn.recv()
@@ -69,10 +83,14 @@ class Worker:
     Args:
         target: a picklable object (sent to the process once).
         niceness: added to the process's nice value (lower priority for long work).
+        realtime: SCHED_FIFO priority (1-99) for short work that must not wait for a core
+            behind normal processes (needs CAP_SYS_NICE or an rtprio limit; refused, the
+            process keeps normal scheduling and ``refused`` says why); 0: none.
     """
 
-    def __init__(self, target: Any, niceness: int = 0) -> None:
-        self.target, self.niceness = target, niceness
+    def __init__(self, target: Any, niceness: int = 0, realtime: int = 0) -> None:
+        self.target, self.niceness, self.realtime = target, niceness, realtime
+        self.refused = ""
         # spawn, not fork: a forked copy of a process running DDS threads is unsafe.
         self._context = multiprocessing.get_context("spawn")
         self._closed = False
@@ -81,11 +99,12 @@ class Worker:
 
     def _start(self) -> None:
         self._conn, child = self._context.Pipe()
-        self.process = self._context.Process(target=_serve, args=(child, self.target, self.niceness), daemon=True)
+        self.process = self._context.Process(target=_serve, args=(child, self.target, self.niceness, self.realtime),
+                                             daemon=True)
         self.process.start()
         child.close()
         try:   # ready: prepared now, not at the first call
-            self._conn.recv()
+            _, self.refused, _ = self._conn.recv()
         except (EOFError, OSError):
             self.process.join(timeout=1.0)
             raise WorkerDied(f"the worker process ended while starting (exit code {self.process.exitcode})") from None
