@@ -43,7 +43,7 @@ def _scheduled(realtime: int) -> str:
         return ""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(realtime))
-    except (PermissionError, OSError, AttributeError) as exc:   # no CAP_SYS_NICE, no rtprio limit; not Linux
+    except (OSError, AttributeError) as exc:   # no CAP_SYS_NICE, no rtprio limit (EPERM); not Linux
         return (f"real-time priority {realtime} (SCHED_FIFO) refused ({exc.__class__.__name__}: "
                 f"{getattr(exc, 'strerror', None) or exc}): normal scheduling")
     return ""
