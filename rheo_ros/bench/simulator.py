@@ -14,13 +14,20 @@ from rheo_ros.rig.simulator import simulate_run
 
 def run(repeats: int = 3) -> dict[str, Any]:
     """Best of ``repeats`` wall times for the default run (5 x 5 markers on the converged
-    FE mesh), physics alone and with the bag written, and the first run's (which builds
-    what the runs of one specimen share)."""
-    setup = Setup(load_params(None))
+    FE mesh), physics alone and with the bag written, and a new specimen's first run with
+    the bag written (which builds what the runs of one specimen share: each repeat's
+    specimen a Poisson ratio of its own, as the bags of a bench each have)."""
+    params = load_params(None)
+    setup = Setup(params)
     duration = setup.profile.t_end
-    t0 = time.perf_counter()
-    simulate_run(setup, 0)  # builds the specimen's condensed mesh and propagators, kept for the runs after
-    first = time.perf_counter() - t0
+    first = []
+    for i in range(repeats):
+        specimen = Setup({**params, "material.gamma": params["material.gamma"] + 0.001 * (i + 1)})
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            simulate_to_bag(specimen, i, Path(tmp) / "bag")
+            first.append(time.perf_counter() - t0)
+    simulate_run(setup, 0)  # builds the default specimen's condensed mesh and flows, kept for the runs after
     physics, total = [], []
     for i in range(repeats):
         t0 = time.perf_counter()
@@ -35,7 +42,7 @@ def run(repeats: int = 3) -> dict[str, Any]:
     return {
         "simulated_s": duration, "mesh": f"{setup.mesh.rows} x {setup.mesh.cols}",
         "fe_mesh": f"{(setup.mesh.rows - 1) * refine + 1} x {(setup.mesh.cols - 1) * refine + 1}", "messages": counts,
-        "first_s": first, "physics_s": min(physics), "bag_s": min(total), "bag_bytes": size,
+        "first_s": min(first), "physics_s": min(physics), "bag_s": min(total), "bag_bytes": size,
         "physics_x_realtime": duration / min(physics), "bag_x_realtime": duration / min(total),
     }
 
@@ -45,5 +52,5 @@ def format_table(r: dict[str, Any]) -> str:
             f"{sum(r['messages'].values())} messages, bag {r['bag_bytes'] / 1e6:.2f} MB\n"
             f"  physics + sensors: {r['physics_s']:.3f} s = {r['physics_x_realtime']:.0f} x real time\n"
             f"  writing the bag:   {r['bag_s']:.3f} s = {r['bag_x_realtime']:.0f} x real time (target >= 200 x)\n"
-            f"  a new specimen's first run (its condensed mesh and propagators built): {r['first_s']:.3f} s = "
-            f"{r['simulated_s'] / r['first_s']:.0f} x real time")
+            f"  a new specimen's first run, the bag written (its condensed mesh and flows built): "
+            f"{r['first_s']:.3f} s = {r['simulated_s'] / r['first_s']:.0f} x real time (target >= 200 x)")
