@@ -33,10 +33,10 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from scipy.linalg import cholesky_banded, expm
-from scipy.linalg.lapack import dtbtrs
+from scipy.linalg import expm
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.banded import BandedCholesky
 from rheo_ros.fe.mesh import Mesh
 from rheo_ros.models.effects import Model
 from rheo_ros.models.elements import Element
@@ -93,17 +93,9 @@ class Condensed:
             K_c = K.toarray()
         else:
             slave = np.setdiff1d(np.arange(fine.n_dofs), dofs)
-            # K_ms K_ss^-1 K_sm = Y^T Y with U^T Y = K_sm, K_ss = U^T U: the grid's dofs
-            # numbered row by row keep K_ss within a band of two rows of nodes, so a banded
-            # Cholesky and one triangular solve (a third of a sparse LU's two solves).
-            K_ss = K[slave][:, slave].tocoo()
-            upper = K_ss.row <= K_ss.col
-            band = int(np.max(K_ss.col[upper] - K_ss.row[upper]))
-            packed = np.zeros((band + 1, slave.size))
-            packed[band + K_ss.row[upper] - K_ss.col[upper], K_ss.col[upper]] = K_ss.data[upper]
-            Y, info = dtbtrs(cholesky_banded(packed), K[slave][:, dofs].toarray(), uplo="U", trans="T")
-            if info != 0:
-                raise np.linalg.LinAlgError(f"condensation: triangular solve failed (LAPACK info {info})")
+            # K_ms K_ss^-1 K_sm = Y^T Y, Y = U^-T K_sm: one triangular solve (a sparse LU's
+            # solve takes two, and its factor more fill than the grid's band).
+            Y = BandedCholesky(K[slave][:, slave]).half_solve(K[slave][:, dofs].toarray())
             K_c = K[dofs][:, dofs].toarray() - Y.T @ Y
         # Lumped masses: each node's to its nearest master.
         node_mass = fine.lumped_mass(density)[::2]

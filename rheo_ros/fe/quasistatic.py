@@ -32,9 +32,9 @@ from functools import cached_property
 
 import numpy as np
 from numpy.polynomial import chebyshev
-from scipy.sparse.linalg import splu
 
 from rheo_ros.experiment import StageProfile
+from rheo_ros.fe.banded import BandedCholesky
 from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import GAMMA_RANGE, Mesh
 from rheo_ros.models.effects import Model, Release
@@ -61,7 +61,7 @@ def elastic_shape(mesh: Mesh, gamma: float, order: int = 1) -> tuple[list[np.nda
     K = [mesh.stiffness(gamma)] + [mesh.stiffness_derivative(gamma, k) for k in range(1, order + 1)]
     held, u0 = mesh.supports(stage_contact=True)
     free = ~held
-    lu = splu(K[0][free][:, free].tocsc())
+    lu = BandedCholesky(K[0][free][:, free])
     u0[free] = lu.solve(-(K[0][free][:, held] @ u0[held]))
     u = [u0]
     for k in range(1, order + 1):
