@@ -9,6 +9,7 @@ message is refused and ``/diagnostics`` names the topic and why.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -64,9 +65,17 @@ class SampleCheck:
 def non_finite(topic: str, t: float, data: Any) -> str | None:
     """What is not a number in a sample of ``topic`` (NaN or inf, which no reading can be),
     naming the first such cell or marker; None when every value is finite."""
+    if isinstance(data, float):
+        if math.isfinite(data):
+            return None
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            total = np.sum(data)
+        if math.isfinite(total):   # NaN and inf carry through a sum (one pass, no mask)
+            return None
     values = np.asarray(data, dtype=float)
     bad = ~np.isfinite(values)
-    if not bad.any():
+    if not bad.any():   # a sum that overflowed
         return None
     if topic == STAGE_TOPIC:
         return f"position {float(values):g} at {t:.3f} s is not a finite number"
