@@ -208,8 +208,8 @@ class WholeRecordProblem:
 
     def residuals(self, params: dict[str, float], p: Prediction | None = None) -> np.ndarray:
         """The weighted residuals at ``params`` (of the prediction ``p`` when given)."""
-        p = self.predict(params) if p is None else p
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
+            p = self.predict(params) if p is None else p
             rf = self._force_residuals(p.force)
             rm = p.displacement - self._disp
             rm = (rm - rm.mean(axis=0)) / self.marker_std
@@ -226,8 +226,8 @@ class WholeRecordProblem:
         if reduced is None:
             return self.residuals(params)
         span, inside, outside = reduced
-        p = self.predict(params)
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
+            p = self.predict(params)
             rf = self._force_residuals(p.force)
             depth = p.depth - p.depth.mean()
             rm = (np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std
