@@ -4,8 +4,12 @@ rate: wall time, multiple of real time and peak memory of all its processes.
 Each record is the default experiment (package simulator) with the keep and the release
 stretched to the length asked (two fifths keep, the rest release), written by ``rheo
 simulate``'s own function; ``rheo analyze`` runs in a child process, with and without the
-diagnosis, while the bench samples the resident memory of that process and of every
-process it starts (the candidates' fits) every 20 ms: the peak is of their sum.
+diagnosis, while the bench samples the memory of that process and of every process it
+starts (the candidates' fits) every 0.2 s: the peak is of their sum. Each process counts
+its proportional set size (its own pages, and each page it shares with others divided by
+their number): the candidates' processes are forked, so their resident sizes each count
+the parent's pages they only read (libraries, the record) again, and their sum overstates
+the machine's memory by those copies.
 """
 
 from __future__ import annotations
@@ -20,7 +24,10 @@ from typing import Any
 from rheo_ros.app.simulate import simulate_to_bag
 from rheo_ros.config.setup import Setup, check_params, load_params
 
-SAMPLE_INTERVAL = 0.02   # s between memory samples
+# s between memory samples: a proportional size reads the process's whole page map (~1-3 ms
+# each), which every 20 ms took a third of a core from the analysis it measures (3000 s at
+# 50 Hz: 28.8 -> 34.0 s); a fit's memory lasts seconds.
+SAMPLE_INTERVAL = 0.2
 
 
 def record_params(length: float, tactile_rate: float) -> dict[str, Any]:
@@ -37,8 +44,9 @@ def record_params(length: float, tactile_rate: float) -> dict[str, Any]:
 
 
 def peak_memory(command: list[str]) -> tuple[float, float, int]:
-    """Run ``command``: its wall time (s), the peak of the summed resident memory (bytes)
-    of it and its descendants, and its exit code."""
+    """Run ``command``: its wall time (s), the peak of the summed proportional set sizes
+    (bytes: shared pages split between their sharers) of it and its descendants, and its
+    exit code."""
     import psutil
 
     t0 = time.perf_counter()
@@ -49,7 +57,7 @@ def peak_memory(command: list[str]) -> tuple[float, float, int]:
         try:
             for p in [root, *root.children(recursive=True)]:
                 try:
-                    total += p.memory_info().rss
+                    total += p.memory_full_info().pss
                 except psutil.Error:   # ended between the listing and the reading
                     pass
         except psutil.Error:
@@ -87,8 +95,8 @@ def run(lengths: str = "170,600", rates: str = "50", seed: int = 1) -> dict[str,
 
 
 def format_table(result: dict[str, Any]) -> str:
-    lines = ["rheo analyze against the record (package simulator; wall time of the command, peak resident memory "
-             "of all its processes)",
+    lines = ["rheo analyze against the record (package simulator; wall time of the command, peak memory of all its "
+             "processes: their proportional set sizes summed, shared pages counted once)",
              f"{'record':>9} {'tactile':>8} {'messages':>9} {'bag':>8} | {'analyze':>9} {'x real':>7} {'peak':>8} | "
              f"{'no-discover':>11} {'x real':>7} {'peak':>8} (target: 100 x real time with discovery)"]
     for r in result["rows"]:
