@@ -506,12 +506,13 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
         finally:
             row["seconds"] = time.perf_counter() - t0
         undecided = list(analysis.diagnoses[-1].undecided) if analysis.diagnoses else []
-        explained = Verdict.of(analysis.diagnoses).explained if analysis.diagnoses else None
+        verdict = Verdict.of(analysis.diagnoses) if analysis.diagnoses else None
+        explained = verdict.explained if verdict else None
         ratio, readings = force_rms_to_noise(analysis.final)
         row |= {"named": list(analysis.missing_effects), "forms": dict(analysis.final.forms),
                 "undecided": undecided, "explained": explained, "force_rms_to_noise": ratio,
                 "force_rms_readings": readings,
-                "evidence": " ".join(d.evidence for d in analysis.diagnoses),
+                "evidence": verdict.evidence if verdict else "",   # with the final verdict's why, when unexplained
                 "outcome": outside_outcome(analysis.missing_effects, explained, bool(undecided)) if row["outside"]
                 else outcome((h["effect"] for h in row["hidden"]), analysis.missing_effects, bool(undecided),
                              explained=explained)}
