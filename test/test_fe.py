@@ -306,7 +306,8 @@ def test_the_modal_flow_is_the_whole_systems_matrix_exponential(contact, arms):
     an arm, free: 3.2e-8 of the largest readout (force, sinking, pressing, markers) apart;
     against a 30-digit reference (mpmath, not a dependency) the parts are within 1.9e-12
     and the whole exponential 3.2e-8 (its scaling and squaring over the stiff modes).
-    Tolerance 1e-7: that rounding, while a wrong coupling term costs whole percents."""
+    Tolerance 1e-6 of the largest readout: 30 x that rounding, for other CPUs' kernels,
+    while a wrong coupling term costs whole percents."""
     from scipy.linalg import expm
 
     mesh = Mesh.build("plane_fe", 0.08, 0.08, 0.0125, 5, 5)
@@ -324,11 +325,12 @@ def test_the_modal_flow_is_the_whole_systems_matrix_exponential(contact, arms):
     for _ in range(steps):
         by_parts, by_whole = fe._step(contact, by_parts, flow), whole @ by_whole
     rows = np.vstack(fe._readout(contact))
-    np.testing.assert_allclose(rows @ by_parts, rows @ by_whole, rtol=0, atol=1e-7 * np.abs(rows @ by_whole).max())
-    np.testing.assert_allclose(by_parts, by_whole, rtol=0, atol=1e-7 * np.abs(by_whole).max())
-    # And a block of equal steps is those steps one by one.
+    np.testing.assert_allclose(rows @ by_parts, rows @ by_whole, rtol=0, atol=1e-6 * np.abs(rows @ by_whole).max())
+    np.testing.assert_allclose(by_parts, by_whole, rtol=0, atol=1e-6 * np.abs(by_whole).max())
+    # And a block of equal steps is those steps one by one (6e-12 of the peak force measured
+    # on the block test's pushes; 1e-9 of the largest state allowed).
     block = fe._propagate(contact, z, flow, fe.BLOCK)
     one_by_one = [z]
     for _ in range(fe.BLOCK):
         one_by_one.append(fe._step(contact, one_by_one[-1], flow))
-    np.testing.assert_allclose(block, np.array(one_by_one[1:]), rtol=0, atol=1e-10 * np.abs(block).max())
+    np.testing.assert_allclose(block, np.array(one_by_one[1:]), rtol=0, atol=1e-9 * np.abs(block).max())
