@@ -333,11 +333,17 @@ class TactileArray:
     def nodal_forces(self, images: np.ndarray) -> np.ndarray:
         """Segment sums (T, nodes) in N from pressure images (T, rows, cols) in Pa."""
         per_col = np.asarray(images, dtype=float).sum(axis=1) * self.cell_area
-        out = np.zeros((per_col.shape[0], self.nodes))
-        owned = self.columns_per_segment > 0
         # A segment's columns are contiguous (nearest node along x): one sum per run.
-        out[:, owned] = np.add.reduceat(per_col, self._segment_starts, axis=1)
+        sums = np.add.reduceat(per_col, self._segment_starts, axis=1)
+        if self._every_node_owned:
+            return sums
+        out = np.zeros((per_col.shape[0], self.nodes))
+        out[:, self.columns_per_segment > 0] = sums
         return out
+
+    @cached_property
+    def _every_node_owned(self) -> bool:
+        return bool(np.all(self.columns_per_segment > 0))
 
     @cached_property
     def _segment_starts(self) -> np.ndarray:

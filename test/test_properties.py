@@ -89,3 +89,23 @@ def test_the_tactile_array_reads_back_the_nodal_forces_it_was_given(nodes, extra
     force = np.random.default_rng(seed).uniform(0.0, 5.0, (7, nodes))
     back = array.nodal_forces(array.pressure(force))
     np.testing.assert_allclose(back, force, rtol=0, atol=1e-12 * force.max())
+
+
+@PROPERTY
+@given(
+    nodes=st.integers(2, 9),
+    cols=st.integers(1, 40),
+    rows=st.integers(1, 8),
+    frames=st.integers(1, 300),
+    seed=st.integers(0, 2**16),
+)
+def test_nodal_forces_of_a_block_of_frames_are_those_of_each_frame_to_the_bit(nodes, cols, rows, frames, seed):
+    """The estimator takes a frame at a time online and a bag's reader may take blocks:
+    the segment sums are the same to the bit either way, with or without segments that
+    own no column (fewer columns than nodes)."""
+    array = TactileArray(rows=rows, cols=cols, width=0.1, depth=0.02, nodes=nodes)
+    images = np.random.default_rng(seed).uniform(0.0, 4e4, (frames, rows, cols)).astype(np.float32)
+    block = array.nodal_forces(images)
+    each = np.concatenate([array.nodal_forces(image[None]) for image in images])
+    assert block.shape == (frames, nodes)
+    assert np.array_equal(block, each)

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from rheo_ros.config.tuning import SegmenterConfig
-from rheo_ros.online.segmenter import PhaseSegmenter, _Line, _median, _robust_spread
+from rheo_ros.online.segmenter import PhaseSegmenter, _Line, _line, _median, _robust_spread
 
 T_START, DEPTH, VELOCITY, KEEP, RETRACT = 2.0, 0.004, 0.001, 6.0, 0.004   # s, m, m/s, s, m/s
 T_PULL_END = T_START + DEPTH / VELOCITY          # 6.0
@@ -220,3 +220,20 @@ def test_the_baselines_median_is_numpys_to_the_bit(x):
         assert np.isnan(_median(x))
     else:
         assert _median(x) == float(np.median(x))
+
+
+@given(st.integers(2, 400), st.floats(-1e3, 1e3), st.floats(-1e-2, 1e-2), st.floats(1e-6, 1e-2),
+       st.integers(0, 2**16))
+def test_the_baselines_line_is_numpys_least_squares_line(n, intercept, slope, noise, seed):
+    """The resting force's line and the plateau's slope (refreshed every few samples, so
+    without ``np.polyfit``'s SVD) are the least-squares line: slope within 1e-9 of the
+    noise over the span, intercept within 1e-9 of the noise."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.001, 0.02, n))
+    y = intercept + slope * t + rng.normal(0.0, noise, n)
+    want_slope, want_icept = np.polyfit(t, y, 1)
+    got_slope, got_icept = _line(t, y)
+    span = t[-1] - t[0]
+    assert abs(got_slope - want_slope) * span <= 1e-9 * noise + 1e-12 * abs(intercept)
+    assert abs(got_icept - want_icept) <= 1e-9 * noise + 1e-12 * (abs(intercept) + abs(slope) * t[-1])
+    assert _line(np.full(3, 2.0), np.arange(3.0)) == (0.0, 1.0)   # times that do not vary: no slope

@@ -10,8 +10,9 @@ final estimate.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +21,7 @@ import numpy as np
 from rheo_ros.config.setup import Setup, check_params, load_params
 from rheo_ros.diagnosis.analysis import Analysis
 from rheo_ros.diagnosis.decision import Diagnosis
-from rheo_ros.diagnosis.discover import Progress, discover
+from rheo_ros.diagnosis.discover import Progress, default_workers, discover
 from rheo_ros.diagnosis.fits import add_effect, base_model, polish
 from rheo_ros.identification.estimate import BASE_PARAMETERS, Estimate
 from rheo_ros.identification.noise import sensor_noise, spikes_note
@@ -41,6 +42,7 @@ from rheo_ros.io.checks import SampleCheck
 from rheo_ros.io.errors import BagError
 from rheo_ros.io.files import write_json_atomic
 from rheo_ros.io.messages import MARKERS_TOPIC, STAGE_TOPIC, TACTILE_TOPIC
+from rheo_ros.io.prefetch import Prefetched
 from rheo_ros.models.effects import effect_class
 from rheo_ros.online.estimator import Job, OnlineDiagnosis, OnlineEstimator, PoolUpdate, Update, estimate_stream
 from rheo_ros.online.segmenter import PhaseEvent
@@ -86,9 +88,10 @@ class SampleNote:
         return self.span is None or (self.span[0] < t1 and self.span[1] > t0)
 
 
-def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None
-                    ) -> Iterator[tuple[str, float, Any]]:
-    """The bag's measurement samples (``bag_samples``), each through the estimator node's
+def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None,
+                    samples: Iterable[tuple[str, float, Any]] | None = None) -> Iterator[tuple[str, float, Any]]:
+    """The bag's measurement samples (``bag_samples``, or ``samples`` where given: the same
+    decoded elsewhere, ``io.prefetch``), each through the estimator node's
     checks (``io.checks.SampleCheck``: shapes, clock jumps, units, NaN), and at the end a
     topic with no message, or whose header stamps do not advance, refused; a hole in a
     topic's stamps (``GAP_INTERVALS``) appended to ``warnings``.
@@ -103,7 +106,7 @@ def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | 
     stale, latest = dict.fromkeys(TOPIC_OF, 0), dict.fromkeys(TOPIC_OF, -float("inf"))
     check = SampleCheck(setup)
     stamps: dict[str, list[float]] = {stream: [] for stream in TOPIC_OF}
-    for stream, t, data in bag_samples(bag):
+    for stream, t, data in bag_samples(bag) if samples is None else samples:
         if stream in TOPIC_OF:
             problem = check.problem(TOPIC_OF[stream], t, data)
             if problem:
@@ -139,11 +142,14 @@ def stamp_gaps(stamps: Sequence[float]) -> list[SampleNote]:
             for k in np.flatnonzero(steps > limit)]
 
 
-def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None) -> list[Job]:
+def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None,
+                 workers: int | None = None) -> list[Job]:
     """Each push's release job, as the estimator node makes it from the bag (a release
     still open at the end of the bag closed there, and said so). ``warnings``: what the
     bag's samples lacked is appended to it (a hole in a topic; samples out of stamp order,
     which the core drops as the node does, counted as the node's /diagnostics counts them).
+    ``workers``: as ``analyze``'s; with more than one the bag is decoded in a process of its
+    own beside the estimator's stream work (``io.prefetch``: the same samples, in order).
 
     Raises:
         BagError: unreadable bag, missing topic, malformed message.
@@ -155,16 +161,17 @@ def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | Non
     jobs: list[Job] = []
     deepest = 0.0
     cuts = None   # releases the node closed on silence: closed here at the same samples
-    for name, t, data in checked_samples(bag, setup, warnings):
-        if cuts is None:   # the samples' reader has checked every chunk by its first sample
-            cuts = release_cuts(bag, chunks_checked=True)
-        while cuts and t > cuts[0][0]:
-            stream.replay_cut(*cuts.pop(0))
-            jobs += stream.ready_jobs(silent=stream.streams)
-        add[name](t, data)
-        jobs += stream.ready_jobs()
-        if name == "stage":
-            deepest = max(deepest, float(data))
+    with Prefetched(partial(bag_samples, bag), process=(workers or default_workers()) > 1) as decoded:
+        for name, t, data in checked_samples(bag, setup, warnings, decoded):
+            if cuts is None:   # the samples' reader has checked every chunk by its first sample
+                cuts = release_cuts(bag, chunks_checked=True)
+            while cuts and t > cuts[0][0]:
+                stream.replay_cut(*cuts.pop(0))
+                jobs += stream.ready_jobs(silent=stream.streams)
+            add[name](t, data)
+            jobs += stream.ready_jobs()
+            if name == "stage":
+                deepest = max(deepest, float(data))
     stream.finish()
     jobs += stream.ready_jobs(silent=stream.streams)
     if warnings is not None:
@@ -220,7 +227,7 @@ def analyze(
     setup = Setup(params)
     say(f"reading {bag}")
     said: list[SampleNote] = []   # what the bag's samples lacked: each push's report, where it touches it
-    releases = release_jobs(bag, setup, said)
+    releases = release_jobs(bag, setup, said, workers)
     pushes = []
     for number, job in enumerate(releases, 1):
         if len(releases) > 1:

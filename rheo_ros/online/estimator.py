@@ -431,6 +431,7 @@ class OnlineEstimator:
         self.profiles: dict[tuple[int, str], StageProfile] = {}
         self.push_start: float | None = None
         self.rejected = {"stage": 0, "force": 0, "markers": 0}
+        self._kept_from = -np.inf   # where the streams were last trimmed to (``_trim``)
         self.identify = PhaseIdentifier(self.mesh, self.config, setup.forward_model())
         self._fits: dict[int, Estimate] = {}      # the last whole-record fit of the current push
         self._final: tuple[int, Estimate] | None = None   # the last push's final fit
@@ -507,23 +508,26 @@ class OnlineEstimator:
 
     def _store(self, stream: str, t: float, value: np.ndarray) -> bool:
         finite = math.isfinite(value) if value.ndim == 0 else bool(np.isfinite(value).all())
-        if not (math.isfinite(t) and finite) or not self.streams[stream].add(t, value):
+        into = self.streams[stream]
+        if not (math.isfinite(t) and finite) or not into.add(t, value):
             self.rejected[stream] += 1
             return False
-        self._trim()
+        self._trim(into)
         return True
 
-    def _trim(self) -> None:
+    def _trim(self, grown: _Stream) -> None:
         # The stage stream decides where a push starts: samples of the other streams
         # are kept until it has passed them, so that which samples a job sees never
         # depends on how the streams interleave (one may run far ahead of another).
-        latest = self.streams["stage"].last
-        margin = self.config.pre_contact + 1.0
-        for s in self.streams.values():
-            if len(s.t) > self.MAX_SAMPLES:       # the stage stream stopped: bounded all the same
-                s.trim_before(s.t[len(s.t) - self.MAX_SAMPLES])
-        if not np.isfinite(latest):
+        # After each call every stream starts at or after ``keep_from``: while it stays
+        # where it was, only the stream that just grew can hold a sample before it.
+        if len(grown.t) > self.MAX_SAMPLES:       # the stage stream stopped: bounded all the same
+            grown.trim_before(grown.t[len(grown.t) - self.MAX_SAMPLES])
+        stage_t = self.streams["stage"].t
+        if not stage_t:
             return
+        latest = stage_t[-1]
+        margin = self.config.pre_contact + 1.0
         if self.push_start is None:
             keep_from = latest - margin
         else:
@@ -536,9 +540,13 @@ class OnlineEstimator:
                 self._objects, self._pool_finals = {}, {}
                 self.dropped_pushes += 1
                 keep_from = latest - margin
-        for s in self.streams.values():
-            if s.t and s.t[0] < keep_from:
-                s.trim_before(keep_from)
+        if keep_from != self._kept_from:
+            self._kept_from = keep_from
+            for s in self.streams.values():
+                if s.t and s.t[0] < keep_from:
+                    s.trim_before(keep_from)
+        elif grown.t[0] < keep_from:
+            grown.trim_before(keep_from)
 
     def _took(self, events: list[PhaseEvent]) -> list[PhaseEvent]:
         for e in events:
@@ -600,6 +608,8 @@ class OnlineEstimator:
                 clock; offline, every stream at the end of the bag): they no longer
                 hold a phase back, and the job says it went without them.
         """
+        if not (self.pending or self._interims or silent):
+            return []   # called after every sample: nothing due is the common case
         jobs = []
         silent = set(silent)
         if "stage" in silent and self.release_open:

@@ -76,6 +76,16 @@ def _median(x: np.ndarray) -> float:
     return float((middle[k - 1] + middle[k]) / 2)
 
 
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and intercept of y on x (slope 0 where x does not vary):
+    ``np.polyfit(x, y, 1)``'s line to rounding, without its SVD, run every few samples."""
+    xm, ym = x.mean(), y.mean()
+    xc = x - xm
+    sxx = float(xc @ xc)
+    slope = float(xc @ (y - ym)) / sxx if sxx > 0 else 0.0
+    return slope, float(ym - slope * xm)
+
+
 def _robust_spread(x: np.ndarray) -> float:
     """Standard deviation from the median absolute deviation (outliers ignored)."""
     return 1.4826 * _median(np.abs(x - _median(x))) if x.size else 0.0
@@ -200,7 +210,7 @@ class PhaseSegmenter:
             return []
         velocity = (k * std - st * sd) / (k * stt - st * st)
         tt, dd = np.array(self._ramp[-n:]).T
-        slope = np.polyfit(tt - tt[0], dd, 1)[0]
+        slope = _line(tt - tt[0], dd)[0]
         if not (velocity > 0 and abs(slope) < self.config.flat_slope * velocity):
             return []
         level = _median(dd)
@@ -323,7 +333,7 @@ class PhaseSegmenter:
         # refreshed every REFRESH resting frames.
         if self._force_cache is None or self._force_seen - self._force_cache[0] >= self.REFRESH:
             rt, rf = np.array(self._force_rest).T
-            slope, icept = np.polyfit(rt - rt[-1], rf, 1)
+            slope, icept = _line(rt - rt[-1], rf)
             spread = _robust_spread(rf - (icept + slope * (rt - rt[-1])))
             self._force_cache = (self._force_seen, float(rt[-1]), float(slope), float(icept), spread)
         _, t_ref, slope, icept, spread = self._force_cache
