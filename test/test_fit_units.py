@@ -552,8 +552,11 @@ def test_the_solver_works_on_the_markers_in_the_span_of_the_shapes(grid):
     assert reduced @ reduced == pytest.approx(full @ full, rel=1e-12)
     names = tuple(params)
     jac = _jacobian(problem.residuals, params, names)
-    turned = problem.full_jacobian(_jacobian(problem.solver_residuals, params, names))
+    turned = problem.from_solver(_jacobian(problem.solver_residuals, params, names))
     assert np.abs(turned - jac).max() < 1e-6 * np.abs(jac).max()
+    # A residual vector turned into the solver's rows is the solver's (1e-12 of the largest row).
+    np.testing.assert_allclose(np.abs(problem.to_solver(full)), np.abs(reduced), rtol=0,
+                               atol=1e-12 * np.abs(reduced).max())
 
 
 @dataclass(frozen=True)
@@ -865,3 +868,53 @@ def test_reading_windows_put_each_windows_excess_at_its_readings():
     np.testing.assert_allclose(out[:250, 1], -w.long_floor[1])   # a model of none: below the long floor
     force[:, 1] = 0.05
     assert np.all(w.excess(force)[:, 1] == 0.0)             # the force read: within every window
+
+
+def test_live_bins_are_orthonormal_means_within_each_phase():
+    """Each group's row is its readings' sum over the square root of their number: the rows
+    are orthonormal, so the sum of squares splits into the groups' rows and the scatter
+    about their means (Pythagoras, 1e-12 relative), and ``expand`` of the rows is each
+    reading's group mean. No group crosses a phase boundary; a group spans at most
+    BIN_GROWTH of the time since its phase began, or BIN_MIN."""
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 400.0, 20_000))
+    nodes = 3
+    row = np.repeat(np.arange(t.size), nodes)
+    node = np.tile(np.arange(nodes), t.size)
+    edges = np.array([5.0, 30.0, 160.0])
+    bins = F.LiveBins(t, row, node, edges)
+    r = rng.normal(size=row.size)
+    rows = bins.reduce(r)
+    assert 100 < bins.groups < row.size / 20
+    assert rows @ rows + np.sum((r - bins.expand(rows)) ** 2) == pytest.approx(r @ r, rel=1e-12)
+    means = np.bincount(bins.group, r) / np.bincount(bins.group)
+    np.testing.assert_allclose(bins.expand(rows), means[bins.group], rtol=0, atol=1e-12)
+    for g in range(bins.groups):
+        members = bins.group == g
+        times = t[row[members]]
+        assert len(set(node[members])) == 1
+        phase = np.searchsorted(edges, times, side="right")
+        assert phase.min() == phase.max()
+        began = np.concatenate([[t.min()], edges])[phase[0]]
+        assert times.max() - times.min() <= _bin_bound(times.max() - began)
+
+
+def _bin_bound(since: float) -> float:
+    return max(F.BIN_GROWTH * (since + F.BIN_MIN / F.BIN_GROWTH), F.BIN_MIN) + 1e-9
+
+
+def test_the_solver_on_bin_means_finds_the_fit_of_every_reading(rec, monkeypatch):
+    """Above REDUCE_ABOVE live readings the solver takes the bins' means (here forced on
+    the tiny record): the parameters within 0.05 of their std of the fit on every reading,
+    the std within 5 %, the cost (the whole record's, the scatter within the bins added
+    back) within 1e-3."""
+    full = fit_record(rec, start(), weights=WEIGHTS, discretisation=False)
+    monkeypatch.setattr(F, "REDUCE_ABOVE", 0)
+    problem = WholeRecordProblem(rec, MODEL, np.full(3, FORCE_STD), MARKER_STD)
+    assert problem._bins is not None and problem._bins.groups < problem.live_counts.sum()
+    binned = fit_record(rec, start(), weights=WEIGHTS, discretisation=False)
+    std = np.sqrt(np.diag(full.covariance))
+    for i, n in enumerate(NAMES):
+        assert abs(binned.params[n] - full.params[n]) < 0.05 * std[i], n
+    np.testing.assert_allclose(np.sqrt(np.diag(binned.covariance)), std, rtol=0.05)
+    assert binned.statistics.cost == pytest.approx(full.statistics.cost, rel=1e-3)

@@ -19,7 +19,7 @@ PARAMS = """/**:
   ros__parameters:
     stage: {depth: 0.002, velocity: 0.002, keep_time: 1.0, start_delay: 0.5, retract_speed: 0.02,
             release_time: 1.5, wait_for_subscribers: 3}
-    simulator.seed: 4
+    simulator: {seed: 4, wait_for_subscribers: 2}
 """
 
 

@@ -112,6 +112,8 @@ def run_demo(params_file: str | None = None, timeout: float = 600.0, effects: li
     params["simulator.clock"] = True
     # simulator, segmenter, estimator (and the recorder): nobody misses the start
     params["stage.wait_for_subscribers"] = 4 if report else 3
+    # segmenter, estimator (and the recorder) matched on the measurement topics before /clock runs
+    params["simulator.wait_for_subscribers"] = 3 if report else 2
     env = dict(os.environ)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))

@@ -161,6 +161,9 @@ PARAMETERS: tuple[Parameter, ...] = (
       "simulator node: publish /clock and run as fast as possible (stage with use_sim_time)"),
     P("simulator.clock_step", 10, "stage periods the /clock moves on per exchange with the stage (fast mode)",
       count(1, "stage periods")),
+    P("simulator.wait_for_subscribers", 0,
+      "fast mode: hold /clock until this many subscribers listen to /tactile/pressure and /markers/mesh "
+      "(0: at once)", count(0, "subscribers")),
     P("effects.relaxation_branch.stiffness", 3.0e4, "Pa, Maxwell arm", positive),
     P("effects.relaxation_branch.viscosity", 1.5e5, "Pa s (time 5 s at the default stiffness)", positive),
     P("effects.adhesion.fraction", 0.3, "of each node's force at contact loss", within(0.0, 1.0)),

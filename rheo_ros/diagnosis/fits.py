@@ -187,13 +187,13 @@ def start_points(record: Record, forward: QuasiStaticFE, current: ModelFit, star
     stepped: tuple[float, tuple[Effect, ...], dict[str, float]] | None = None
     for effect in starts:
         problem, params = _start_problem(record, forward, current, effect, noise, others)
-        r0 = _residuals(problem, params)
+        r0 = _residuals(problem, params, solver=True)
         if r0 is None:
             continue
         point = (float(r0 @ r0), problem.model.effects, {k: params[k] for k in BASE_PARAMETERS})
         as_given = point if as_given is None or point[0] < as_given[0] else as_given
         moved = _linearised_step(problem, params, r0, scale)
-        r1 = None if moved is None else _residuals(problem, moved)
+        r1 = None if moved is None else _residuals(problem, moved, solver=True)
         if r1 is not None and float(r1 @ r1) < point[0] and (stepped is None or float(r1 @ r1) < stepped[0]):
             effects = problem.model.with_parameters({k: v for k, v in moved.items()
                                                      if k in problem.model.parameters}).effects
@@ -216,7 +216,8 @@ def _linearised_step(problem: WholeRecordProblem, params: dict[str, float], r0: 
     columns = []
     for k in names:
         h = (1e-4 if k == "gamma" else 1e-3 * max(abs(params[k]), scale)) if k in signed else 1e-3
-        r = _residuals(problem, {**params, k: params[k] + h if k in signed else params[k] * np.exp(h)})
+        r = _residuals(problem, {**params, k: params[k] + h if k in signed else params[k] * np.exp(h)},
+                       solver=True)
         if r is None:
             return None
         columns.append((r - r0) / h)
@@ -244,10 +245,12 @@ def _problem(record: Record, forward: QuasiStaticFE, model: Model, weights: Weig
                               excluded=noise.force_spikes)
 
 
-def _residuals(problem: WholeRecordProblem, params: dict[str, float]) -> np.ndarray | None:
-    """``problem``'s residuals at ``params``; None where they cannot be evaluated."""
+def _residuals(problem: WholeRecordProblem, params: dict[str, float], solver: bool = False) -> np.ndarray | None:
+    """``problem``'s residuals at ``params`` (``solver``: in the solver's rows, the same
+    sum of squares but for the scatter within long records' bins, on far fewer rows for a
+    start's Jacobian); None where they cannot be evaluated."""
     try:
-        r = problem.residuals(params)
+        r = problem.solver_residuals(params) if solver else problem.residuals(params)
     except (ValueError, np.linalg.LinAlgError):
         return None
     return r if np.all(np.isfinite(r)) else None

@@ -68,11 +68,67 @@ LONG_MARGIN_FLOOR = 0.25
 # over three reference bags' analyses (measured, stop 49): the last iterations moved nothing.
 SOLVER_TOLERANCE = 1e-8
 OVERFLOW_RESIDUAL = 1e6   # noise stds: a residual of a model whose forces overflowed
+# Above this many live force readings the solver takes their means over bins (``LiveBins``):
+# its Jacobian's rows, and the memory and the factorisations that go with them, stay bounded
+# whatever the record's length or rate. 50 000 readings: 200 s of the 5 segments at 50 Hz.
+REDUCE_ABOVE = 50_000
+# A bin spans BIN_GROWTH of the time since its phase began, and at least BIN_MIN s: the
+# responses relax like exponentials, which move by at most BIN_GROWTH / e of their size
+# over such a bin, so the means keep the shape.
+BIN_GROWTH = 0.02
+BIN_MIN = 0.02
 
 
 def misfit_limit(samples: int) -> float:
     """The largest residual-to-noise ratio a right model shows on ``samples`` readings."""
     return max(MISFIT_RATIO, 1.0 + MISFIT_SIGMAS * 1.3 / np.sqrt(max(samples, 1)))
+
+
+class LiveBins:
+    """The live force readings grouped by segment and by bin of time (``BIN_GROWTH``,
+    ``BIN_MIN``, the bins restarting at each phase boundary in ``edges``), and the map of
+    their weighted residuals to one row per group: the sum over the group over the square
+    root of its size, which is the group's mean residual weighted by its own noise (the
+    exact likelihood of the mean). The rows are orthonormal combinations of the readings',
+    so J^T J of the groups is the readings' wherever the model's slope is the same across a
+    group, and ``expand`` spreads a group's row back over its readings.
+
+    Args:
+        t: (T,) the readings' times (s); node: (n,) each live reading's segment and
+            row: (n,) its row in ``t``, in the fit's (row-major) order; edges: the phase
+            boundaries (s).
+    """
+
+    def __init__(self, t: np.ndarray, row: np.ndarray, node: np.ndarray, edges: np.ndarray) -> None:
+        edges = np.sort(np.asarray(edges, float))
+        tr = np.asarray(t, float)[row]
+        phase = np.searchsorted(edges, tr, side="right")
+        since = tr - np.concatenate([[tr.min() if tr.size else 0.0], edges])[phase]
+        step = np.floor(np.log1p(np.maximum(since, 0.0) / (BIN_MIN / BIN_GROWTH)) / np.log1p(BIN_GROWTH))
+        key = np.lexsort((row, step, phase, node))          # by segment, phase, bin, then time
+        self.order = key
+        ordered = np.stack([node[key], phase[key], step[key]])
+        first = np.ones(key.size, bool)
+        first[1:] = np.any(ordered[:, 1:] != ordered[:, :-1], axis=0)
+        self.starts = np.flatnonzero(first)
+        sizes = np.diff(np.append(self.starts, key.size))
+        self.scale = 1.0 / np.sqrt(sizes)
+        self.group = np.empty(key.size, np.intp)            # each reading's group, in the fit's order
+        self.group[key] = np.cumsum(first) - 1
+
+    @property
+    def groups(self) -> int:
+        return int(self.starts.size)
+
+    def reduce(self, r: np.ndarray) -> np.ndarray:
+        """(groups,) rows of the readings' weighted residuals ``r`` (n,)."""
+        return np.add.reduceat(r[self.order], self.starts) * self.scale
+
+    def expand(self, rows: np.ndarray) -> np.ndarray:
+        """(n, ...) the readings' rows of groups' rows (groups, ...): each group's row over
+        the square root of its size, on each of its readings (the inverse on the span)."""
+        scaled = rows * (self.scale if rows.ndim == 1 else self.scale[:, None])
+        return scaled[self.group]
 
 
 @dataclass
@@ -139,6 +195,11 @@ class WholeRecordProblem:
         self._live_at = np.flatnonzero(self._live)
         self._live_node = self._live_at % self._force.shape[1]
         self._live_force = self._force.ravel()[self._live_at]
+        edges = np.array([self.profile.t_pull_start, contact_time(self.record), self.profile.t_pull_end,
+                          self.profile.t_keep_end])
+        self._bins = (LiveBins(self.record.force_t[self._use], self._live_at // self._force.shape[1],
+                               self._live_node, edges[np.isfinite(edges)])
+                      if self._live_at.size > REDUCE_ABOVE else None)
         self._own = frozenset(self.model.parameters)   # the model's names: read at every evaluation
         self.forward = self.forward or QuasiStaticFE(self.record.mesh)
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
@@ -221,29 +282,83 @@ class WholeRecordProblem:
         and one fixed row for the data outside it. An orthogonal change of basis that
         drops rows no parameter moves: the same sum of squares and the same J^T J, on
         (Tm k + 1) marker rows instead of Tm 2 N (on the 5 x 5 grid, 8 a frame of 50).
-        ``full_jacobian`` turns the solver's Jacobian back."""
+        Above REDUCE_ABOVE live force readings, those too as their bins' means
+        (``LiveBins``: the sum of squares less the scatter within the bins, ``within_bins``).
+        ``from_solver`` turns the solver's rows back."""
         reduced = self._markers_in_span
-        if reduced is None:
+        if reduced is None and self._bins is None:
             return self.residuals(params)
-        span, inside, outside = reduced
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
             p = self.predict(params)
             rf = self._force_residuals(p.force)
-            depth = p.depth - p.depth.mean()
-            rm = (np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std
-        return self._assemble(params, p, rf, np.append(rm.ravel(), outside / self.marker_std))
+            if self._bins is not None:
+                rf = self._bins.reduce(rf)
+            if reduced is None:
+                rm = p.displacement - self._disp
+                rm = (rm - rm.mean(axis=0)) / self.marker_std
+            else:
+                span, inside, outside = reduced
+                depth = p.depth - p.depth.mean()
+                rm = np.append(((np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std).ravel(),
+                               outside / self.marker_std)
+        return self._assemble(params, p, rf, rm)
 
-    def full_jacobian(self, jac: np.ndarray) -> np.ndarray:
-        """The Jacobian of ``residuals`` from that of ``solver_residuals`` (the markers'
-        rows turned back from the span; exact, every column lying in it)."""
+    def within_bins(self, params: dict[str, float]) -> float:
+        """What the solver's rows leave out of the sum of squares at ``params``: the live
+        readings' scatter about their bins' means (0 without bins). The solver's cost plus
+        this is the whole record's."""
+        if self._bins is None:
+            return 0.0
+        with np.errstate(over="ignore", invalid="ignore"):
+            rf = self._force_residuals(self.predict(params).force)
+        return float(rf @ rf - np.sum(self._bins.reduce(rf) ** 2))
+
+    @property
+    def solver_samples(self) -> int:
+        """The solver's rows for the readings (live force readings, markers), before the
+        clocks' prior and the bounds."""
+        nf = self._bins.groups if self._bins is not None else self._live_at.size
         reduced = self._markers_in_span
+        return nf + (self.marker_count if reduced is None else len(self._disp) * reduced[0].shape[1] + 1)
+
+    def to_solver(self, v: np.ndarray) -> np.ndarray:
+        """A vector in the rows of ``residuals`` in those of ``solver_residuals``: the live
+        readings' bins summed (``LiveBins.reduce``), each frame's markers turned to the span,
+        what lies outside it as one row of its norm. Linear but for that row, which no
+        parameter moves (a least-squares solve against the solver's Jacobian ignores it)."""
+        reduced = self._markers_in_span
+        if reduced is None and self._bins is None:
+            return v
+        nf = self._live_at.size
+        force = v[:nf] if self._bins is None else self._bins.reduce(v[:nf])
         if reduced is None:
-            return jac
+            return np.concatenate([force, v[nf:]])
         span = reduced[0]
-        nf = int(self._live.sum())
-        tm, k = len(self._disp), span.shape[1]
-        markers = np.einsum("tkp,ck->tcp", jac[nf:nf + tm * k].reshape(tm, k, -1), span)
-        return np.concatenate([jac[:nf], markers.reshape(-1, jac.shape[1]), jac[nf + tm * k + 1:]])
+        tm, nm = self._disp.shape[0], self._disp[0].size
+        markers = v[nf:nf + tm * nm].reshape(tm, nm)
+        inside = markers @ span
+        outside = np.linalg.norm(markers - inside @ span.T)
+        return np.concatenate([force, inside.ravel(), [outside], v[nf + tm * nm:]])
+
+    def from_solver(self, rows: np.ndarray) -> np.ndarray:
+        """Rows of ``solver_residuals`` (a vector, or a matrix such as its Jacobian) in the
+        rows of ``residuals``: the bins' rows spread over their readings, the markers' turned
+        back from the span, the row outside it dropped. Exact for every vector the model
+        moves (each marker column lies in the span; a bin's readings share its slope)."""
+        reduced = self._markers_in_span
+        if reduced is None and self._bins is None:
+            return rows
+        matrix = rows.reshape(rows.shape[0], -1)
+        nf = self._bins.groups if self._bins is not None else self._live_at.size
+        force = matrix[:nf] if self._bins is None else self._bins.expand(matrix[:nf])
+        if reduced is None:
+            out = np.concatenate([force, matrix[nf:]])
+        else:
+            span = reduced[0]
+            tm, k = len(self._disp), span.shape[1]
+            markers = np.einsum("tkp,ck->tcp", matrix[nf:nf + tm * k].reshape(tm, k, -1), span)
+            out = np.concatenate([force, markers.reshape(-1, matrix.shape[1]), matrix[nf + tm * k + 1:]])
+        return out.reshape(-1, *rows.shape[1:])
 
     def _assemble(self, params: dict[str, float], p: Prediction, rf: np.ndarray, rm: np.ndarray) -> np.ndarray:
         """The residual vector: live force readings, markers, the clocks' prior, the bounds."""
@@ -638,7 +753,8 @@ def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], a
     r = [at_fit, replace(problem, forward=finer).residuals(params),
          replace(problem, forward=finer.finer()).residuals(params)]
     dx = np.zeros((len(loose), 2))
-    dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([r[1] - r[0], r[2] - r[1]]),
+    dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([problem.to_solver(r[1] - r[0]),
+                                                                         problem.to_solver(r[2] - r[1])]),
                                    rcond=None)[0]
     std = np.abs((dx[:, 0] + dx[:, 1] / (1.0 - DISCRETISATION_RATIO)) * slope)
     # The residuals' move to the continuum (the rest is the parameters' shift above).
@@ -654,8 +770,8 @@ def _floor_of(problem: WholeRecordProblem, move: np.ndarray, sol, loose: np.ndar
     segment: how the projection spreads the move over the segments follows the fit's
     weights, not the model (a segment weighted heavily takes its move into the parameters
     and would claim a floor of almost nothing)."""
-    jac = sol.jac[:, ~loose]
-    move = move - jac @ np.linalg.lstsq(jac, move, rcond=None)[0]
+    jac = sol.jac[:, ~loose]   # the solver's rows (``WholeRecordProblem.to_solver``)
+    move = move - problem.from_solver(jac @ np.linalg.lstsq(jac, problem.to_solver(move), rcond=None)[0])
     node = np.nonzero(problem.live_mask)[1]
     nodes = problem.live_mask.shape[1]
     force_move = move[:node.size] * np.broadcast_to(problem.force_std, (nodes,))[node]
@@ -751,10 +867,10 @@ def fit_record(
         sol, passes = _reweighted(problem, residuals, unpack, pmap, max_iterations, scale_f)
     else:
         sol, passes = _solve(residuals, pmap, pmap.start(), SOLVER_TOLERANCE, max_iterations), 1
-    sol.jac = problem.full_jacobian(sol.jac)
     params = unpack(sol.x)
     dof = max(problem.samples + len(DELAYS) - len(names), 1)
-    cost = float(sol.fun @ sol.fun)
+    solved = float(sol.fun @ sol.fun)   # the solver's cost: what a bound's range is judged on
+    cost = solved + problem.within_bins(params)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
     held: dict[str, tuple[float, float]] = {}
@@ -762,9 +878,9 @@ def fit_record(
         # A parameter no live reading and no marker moves is held by the bounds alone: a
         # hinge barely active at the fit gives it a slope, and a std, that say nothing.
         column = np.linalg.norm(sol.jac, axis=0)
-        measured = np.linalg.norm(sol.jac[:problem.samples], axis=0)
+        measured = np.linalg.norm(sol.jac[:problem.solver_samples], axis=0)
         only = np.flatnonzero(~pmap.at_edge(sol.x) & (measured <= 1e-9 * column))
-        ranges = [_held_by_bounds(residuals, sol.x, i, cost) for i in only]
+        ranges = [_held_by_bounds(residuals, sol.x, i, solved) for i in only]
         for i in only:
             cov_x[i, :] = cov_x[:, i] = 0.0
         loose[only] = True

@@ -57,6 +57,9 @@ class SimulatorNode(Node):
         self.t0: int | None = None
         self.drive_clock = params["simulator.clock"]
         self.clock_step = params["simulator.clock_step"]
+        # A run driven as fast as the nodes answer lasts a second or less: a recorder or an
+        # estimator whose subscription matches a moment late would miss its start.
+        self.wait_for = params["simulator.wait_for_subscribers"]
         if self.drive_clock:
             self.clock_publisher = self.create_publisher(Clock, "/clock", 10)
             self.clock_ns = 1_000_000_000  # sim time starts at 1 s (0 means "no time yet")
@@ -105,6 +108,10 @@ class SimulatorNode(Node):
         self.clock_publisher.publish(msg)
 
     def kick_clock(self) -> None:
+        if self.wait_for:   # the run starts with the first /clock: not before every listener matched
+            if min(self.tactile.get_subscription_count(), self.markers.get_subscription_count()) < self.wait_for:
+                return
+            self.wait_for = 0
         if time.monotonic() - self.last_progress > 0.2:
             self.publish_clock()
 
