@@ -4,8 +4,8 @@ its items handed back in pickled batches, in order.
 Decoding a bag (rosbags' reader and CDR deserialisation, the samples' checks) costs about
 as much CPU as the estimator's stream work on the samples; on a second core the two
 overlap. The items arrive as the same objects to the bit (pickle), in the same order, then
-the producer's error or its return value: what the consumer computes does not depend on
-where they were decoded.
+the producer's error: what the consumer computes does not depend on where they were
+decoded.
 """
 
 from __future__ import annotations
@@ -13,45 +13,33 @@ from __future__ import annotations
 import multiprocessing
 import pickle
 import traceback
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Iterator
 from typing import Any, Generic, TypeVar
 
 from rheo_ros.io.errors import BagError
 
 T = TypeVar("T")
-R = TypeVar("R")
 
 BATCH = 1024   # items a message: pickling costs ~1 us an item and ~50 us a message
 
 _MORE, _DONE, _FAILED = 0, 1, 2
 
 
-class Prefetched(Generic[T, R]):
+class Prefetched(Generic[T]):
     """Iterate ``produce()``'s items, decoded in a forked process (``process``) or here.
 
-    ``result`` is the producer's return value once every item is out; an exception it
-    raised is raised here after the items it yielded before it (its traceback in the
-    child attached as a note). Used as a context manager, or closed: a consumer that stops
-    early ends the child.
+    An exception the producer raised is raised here after the items it yielded before it
+    (a bug's traceback in the child attached as a note). Used as a context manager, or
+    closed: a consumer that stops early ends the child.
     """
 
-    def __init__(self, produce: Callable[[], Generator[T, Any, R]], process: bool = True,
-                 batch: int = BATCH) -> None:
+    def __init__(self, produce: Callable[[], Iterator[T]], process: bool = True, batch: int = BATCH) -> None:
         self._produce, self._process, self._batch = produce, process, batch
         self._child: Any = None
-        self._done = False
-        self._result: R | None = None
-
-    @property
-    def result(self) -> R:
-        if not self._done:
-            raise RuntimeError("the producer's result before its last item")
-        return self._result   # type: ignore[return-value]
 
     def __iter__(self) -> Iterator[T]:
         if not self._process:
-            self._result = yield from self._produce()
-            self._done = True
+            yield from self._produce()
             return
         context = multiprocessing.get_context("fork")   # the child inherits what the parent loaded
         receive, send = context.Pipe(duplex=False)
@@ -62,15 +50,14 @@ class Prefetched(Generic[T, R]):
         try:
             while True:
                 try:
-                    items, state, value = pickle.loads(receive.recv_bytes())
+                    items, state, error = pickle.loads(receive.recv_bytes())
                 except EOFError:   # the child died without a word (killed)
                     raise RuntimeError(f"the bag's reader process ended (exit code {self._child.exitcode}) "
                                        "before its last sample") from None
                 yield from items
                 if state == _FAILED:
-                    raise value
+                    raise error
                 if state == _DONE:
-                    self._result, self._done = value, True
                     return
         finally:
             receive.close()
@@ -84,26 +71,22 @@ class Prefetched(Generic[T, R]):
             self._child.join()
             self._child = None
 
-    def __enter__(self) -> Prefetched[T, R]:
+    def __enter__(self) -> Prefetched[T]:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def _run(produce: Callable[[], Generator[Any, Any, Any]], send: Any, batch: int) -> None:
+def _run(produce: Callable[[], Iterator[Any]], send: Any, batch: int) -> None:
     items: list[Any] = []
     try:
-        producer = produce()
-        while True:
-            try:
-                items.append(next(producer))
-            except StopIteration as stop:
-                send.send_bytes(pickle.dumps((items, _DONE, stop.value), protocol=pickle.HIGHEST_PROTOCOL))
-                return
+        for item in produce():
+            items.append(item)
             if len(items) >= batch:
                 send.send_bytes(pickle.dumps((items, _MORE, None), protocol=pickle.HIGHEST_PROTOCOL))
                 items = []
+        send.send_bytes(pickle.dumps((items, _DONE, None), protocol=pickle.HIGHEST_PROTOCOL))
     except Exception as exc:   # raised in the consumer, after the items before it
         if not isinstance(exc, BagError):   # a bag's fault is its one line; a bug keeps where it was
             exc.add_note("in the bag's reader process:\n" + "".join(traceback.format_exc()))
