@@ -334,3 +334,23 @@ def test_the_modal_flow_is_the_whole_systems_matrix_exponential(contact, arms):
     for _ in range(fe.BLOCK):
         one_by_one.append(fe._step(contact, one_by_one[-1], flow))
     np.testing.assert_allclose(block, np.array(one_by_one[1:]), rtol=0, atol=1e-9 * np.abs(block).max())
+
+
+def test_a_mesh_unpickled_again_is_the_processs_one_copy_with_its_stiffness():
+    # Each job crosses to the closed-form worker with its record's mesh: the second one
+    # must come back as the first, its assembled stiffness with it (not assembled again).
+    import pickle
+
+    mesh = Mesh.build("plane_fe", 0.08, 0.04, 0.0125, 5, 5)
+    first = pickle.loads(pickle.dumps(mesh))
+    parts = first.stiffness_parts
+    again = pickle.loads(pickle.dumps(mesh))
+    assert again is first and again.stiffness_parts is parts
+    assert (again.geometry, again.rows, again.cols, again.boundary) == (mesh.geometry, 5, 5, mesh.boundary)
+    assert np.array_equal(again.nodes, mesh.nodes)
+    other = pickle.loads(pickle.dumps(Mesh.build("plane_fe", 0.08, 0.04, 0.0125, 5, 5, Boundary("frictionless"))))
+    assert other is not first and other.boundary == Boundary("frictionless")
+    moved = Mesh(mesh.geometry, mesh.width, mesh.height, mesh.thickness, mesh.rows, mesh.cols,
+                 mesh.nodes + 1e-6, mesh.boundary)
+    assert pickle.loads(pickle.dumps(moved)) is not first
+    np.testing.assert_array_equal(pickle.loads(pickle.dumps(moved)).nodes, mesh.nodes + 1e-6)

@@ -918,3 +918,30 @@ def test_the_solver_on_bin_means_finds_the_fit_of_every_reading(rec, monkeypatch
         assert abs(binned.params[n] - full.params[n]) < 0.05 * std[i], n
     np.testing.assert_allclose(np.sqrt(np.diag(binned.covariance)), std, rtol=0.05)
     assert binned.statistics.cost == pytest.approx(full.statistics.cost, rel=1e-3)
+
+
+@pytest.mark.parametrize("with_bounds", [False, True])
+def test_the_bins_rows_from_two_model_times_a_bin_are_every_readings_means(rec, monkeypatch, with_bounds):
+    """Binned, the solver asks the model at two times a bin (``BinTimes``: Gauss's rule over
+    the bin's times) and at the bounded readings, not at every reading: its rows are those
+    of every reading's residuals turned to the solver's rows (``to_solver``) within 1e-3 of
+    the noise (a bin's mean's own std is 1), the bounds' rows the same to rounding; on far
+    fewer model times than readings."""
+    from rheo_ros.identification.noise import sensor_noise
+
+    monkeypatch.setattr(F, "REDUCE_ABOVE", 0)
+    record = banded(rec) if with_bounds else rec
+    noise = sensor_noise(record)
+    kw = dict(live=noise.force_live, **F.bounds(record, noise.force_std)) if with_bounds else {}
+    prob = problem(record, **kw)
+    params = {**{k: 1.05 * v for k, v in TRUTH.items()}, "tactile_delay": 0.01, "marker_delay": -0.02}
+    exact, fast = prob.to_solver(prob.residuals(params)), prob.solver_residuals(params)
+    assert fast.shape == exact.shape
+    groups = prob._bins.groups
+    assert groups < prob.live_counts.sum()
+    np.testing.assert_allclose(fast[:groups], exact[:groups], rtol=0, atol=1e-3)
+    np.testing.assert_allclose(np.abs(fast[groups:]), np.abs(exact[groups:]), rtol=1e-9, atol=1e-12)
+    assert np.abs(fast[:groups] - exact[:groups]).max() > 0.0   # the model's times, not the readings'
+    if with_bounds:
+        assert prob._bounds is not None and prob._bounds.at.size > 0
+    assert prob._bin_times.times.size < prob.live_counts.sum()

@@ -8,6 +8,7 @@ hypothesis finds there is a defect, and it prints the smallest one it found.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from conftest import analytic_block_record
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -109,3 +110,43 @@ def test_nodal_forces_of_a_block_of_frames_are_those_of_each_frame_to_the_bit(no
     each = np.concatenate([array.nodal_forces(image[None]) for image in images])
     assert block.shape == (frames, nodes)
     assert np.array_equal(block, each)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["add", "add", "add", "trim", "window"]),
+                          st.floats(-5.0, 60.0, allow_nan=False), st.floats(0.0, 30.0, allow_nan=False)),
+                max_size=300),
+       st.sampled_from([(), (3,), (2, 2)]))
+def test_a_stream_in_growing_arrays_holds_what_a_list_of_samples_would(ops, shape):
+    """The estimator's stream (``_Stream``: arrays that grow by doubling, trimmed from the
+    front) against a plain list of samples: the same samples kept and refused (a stamp
+    not after the last), the same windows to the bit, through growth and trims."""
+    import bisect
+
+    from rheo_ros.online.estimator import _Stream
+
+    stream, ts, values = _Stream(), [], []
+    stream.GROWTH_MIN = 4   # grown and compacted many times over, not once in 1024 samples
+    for i, (op, a, b) in enumerate(ops):
+        if op == "add":
+            value = np.full(shape, float(i))
+            kept = not ts or a > ts[-1]
+            assert stream.add(a, value) == kept
+            if kept:
+                ts.append(a)
+                values.append(value)
+        elif op == "trim":
+            k = bisect.bisect_left(ts, a)
+            del ts[:k], values[:k]
+            stream.trim_before(a)
+        else:
+            t, data = stream.window(a, a + b)
+            i0, i1 = bisect.bisect_left(ts, a), bisect.bisect_right(ts, a + b)
+            np.testing.assert_array_equal(t, np.array(ts[i0:i1]))
+            np.testing.assert_array_equal(data.reshape(-1, *shape), np.array(values[i0:i1]).reshape(-1, *shape))
+        assert len(stream) == len(ts)
+        assert stream.last == (ts[-1] if ts else -np.inf) and stream.first == (ts[0] if ts else np.inf)
+        np.testing.assert_array_equal(stream.t, np.array(ts))
+    if ts and shape:
+        with pytest.raises(ValueError, match="shape"):
+            stream.add(ts[-1] + 1.0, np.zeros((7,)))

@@ -6,6 +6,7 @@ problem, the best any unbiased estimator can do on such data.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -104,12 +105,20 @@ class LiveBins:
         tr = np.asarray(t, float)[row]
         phase = np.searchsorted(edges, tr, side="right")
         since = tr - np.concatenate([[tr.min() if tr.size else 0.0], edges])[phase]
+        del tr
         step = np.floor(np.log1p(np.maximum(since, 0.0) / (BIN_MIN / BIN_GROWTH)) / np.log1p(BIN_GROWTH))
-        key = np.lexsort((row, step, phase, node))          # by segment, phase, bin, then time
+        del since
+        step = step.astype(np.int64)
+        # One code per (segment, phase, bin); a stable sort keeps each bin's readings in the
+        # fit's order, which is in time: by segment, phase, bin, then time, on one key.
+        code = (np.asarray(node, np.int64) * (edges.size + 1) + phase) * (int(step.max(initial=0)) + 1) + step
+        del phase, step
+        key = np.argsort(code, kind="stable")
         self.order = key
-        ordered = np.stack([node[key], phase[key], step[key]])
+        code = code[key]
         first = np.ones(key.size, bool)
-        first[1:] = np.any(ordered[:, 1:] != ordered[:, :-1], axis=0)
+        first[1:] = code[1:] != code[:-1]
+        del code
         self.starts = np.flatnonzero(first)
         sizes = np.diff(np.append(self.starts, key.size))
         self.scale = 1.0 / np.sqrt(sizes)
@@ -129,6 +138,50 @@ class LiveBins:
         the square root of its size, on each of its readings (the inverse on the span)."""
         scaled = rows * (self.scale if rows.ndim == 1 else self.scale[:, None])
         return scaled[self.group]
+
+
+class BinTimes:
+    """The times at which the solver asks the model's force when the live readings are
+    binned (``LiveBins``), and the bins' rows from the force there. A bin's row holds the
+    mean of the model over its readings' times; it is taken as the mean at the two points
+    t_mean -+ t_std of those times (Gauss's two-point rule for their spread: exact for a
+    force quadratic across the bin, which spans BIN_GROWTH of its phase's age), so each
+    evaluation costs two model times a bin, not one a reading: the evaluations' time and
+    memory no longer grow with the rate, nor with the length but as the bins' logarithm.
+    The readings that bound the force (``ReadingBounds``) are asked at their own times.
+    ``WholeRecordProblem.within_bins`` and the statistics still take every reading.
+
+    Args:
+        bins: the bins; t: (n,) each live reading's time, node: (n,) its segment,
+            force: (n,) its reading (N), in the fit's order; nodes: segments a frame;
+            frame_t: (T,) the fitted
+            frames' times; bounded: flat (row-major) indices of the readings that bound
+            the force, in (T, nodes) (None: none).
+    """
+
+    def __init__(self, bins: LiveBins, t: np.ndarray, node: np.ndarray, force: np.ndarray, nodes: int,
+                 frame_t: np.ndarray, bounded: np.ndarray | None) -> None:
+        size = np.diff(np.append(bins.starts, bins.order.size)).astype(float)
+        ordered = t[bins.order]
+        mean_t = np.add.reduceat(ordered, bins.starts) / size
+        spread = np.sqrt(np.maximum(np.add.reduceat((ordered - np.repeat(mean_t, size.astype(int))) ** 2,
+                                                    bins.starts) / size, 0.0))
+        points = np.concatenate([mean_t - spread, mean_t + spread])
+        bound_t = np.empty(0) if bounded is None else frame_t[bounded // nodes]
+        self.times = np.unique(np.concatenate([points, bound_t]))
+        self.node = node[bins.order[bins.starts]]   # each bin's segment
+        self._at = np.searchsorted(self.times, points) * nodes + np.tile(self.node, 2)
+        self._mean = np.add.reduceat(force[bins.order], bins.starts) / size
+        self._root = np.sqrt(size)
+        self.bounded = (np.empty(0, np.intp) if bounded is None else
+                        np.searchsorted(self.times, bound_t) * nodes + bounded % nodes)
+
+    def rows(self, force: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """(groups,) the bins' rows (``LiveBins.reduce`` of the weighted residuals) from the
+        model's forces at ``times`` (flat, row-major: (times, nodes)) and each bin's noise
+        (N, by ``node``)."""
+        model = 0.5 * force[self._at].reshape(2, -1).sum(axis=0)
+        return (model - self._mean) * self._root / noise
 
 
 @dataclass
@@ -205,6 +258,15 @@ class WholeRecordProblem:
         self.names = tuple(self.model.parameters) + ("gamma",) + (DELAYS if self.delays else ())
         self._disp = self.record.markers - self.record.mesh.nodes[None]
 
+    def on(self, forward: QuasiStaticFE) -> WholeRecordProblem:
+        """This problem on another forward model (a finer mesh): the data's layout (live
+        readings, bounds, bins) shared, not laid out again; what depends on the forward
+        model found again on first use."""
+        other = copy.copy(self)
+        other.__dict__.pop("_markers_in_span", None)
+        other.forward = forward
+        return other
+
     @cached_property
     def _markers_in_span(self) -> tuple[np.ndarray, np.ndarray, float] | None:
         """The solver's markers (None: every row): the span of the elastic shapes (the
@@ -274,7 +336,8 @@ class WholeRecordProblem:
             rf = self._force_residuals(p.force)
             rm = p.displacement - self._disp
             rm = (rm - rm.mean(axis=0)) / self.marker_std
-        return self._assemble(params, p, rf, rm)
+            excess = None if self._bounds is None else self._bounds.excess(p.force)
+        return self._assemble(params, rf, rm, excess)
 
     def solver_residuals(self, params: dict[str, float]) -> np.ndarray:
         """``residuals`` in the form the solver works on: the markers' rows turned to the
@@ -288,11 +351,21 @@ class WholeRecordProblem:
         reduced = self._markers_in_span
         if reduced is None and self._bins is None:
             return self.residuals(params)
+        model, every, times = self._at(params)
         with np.errstate(over="ignore", invalid="ignore"):   # an overflowing trial: _assemble
-            p = self.predict(params)
-            rf = self._force_residuals(p.force)
-            if self._bins is not None:
-                rf = self._bins.reduce(rf)
+            if self._bins is not None and not every:
+                plan = self._bin_times
+                p = self.forward.predict(model, params["gamma"], self.profile,
+                                         plan.times - params.get("tactile_delay", 0.0), times[1])
+                f = p.force.ravel()
+                rf = plan.rows(f, self._noise_at(plan.node))
+                excess = None if self._bounds is None else self._bounds.excess_at(f[plan.bounded])
+            else:
+                p = self.predict(params)
+                rf = self._force_residuals(p.force)
+                if self._bins is not None:
+                    rf = self._bins.reduce(rf)
+                excess = None if self._bounds is None else self._bounds.excess(p.force)
             if reduced is None:
                 rm = p.displacement - self._disp
                 rm = (rm - rm.mean(axis=0)) / self.marker_std
@@ -301,7 +374,15 @@ class WholeRecordProblem:
                 depth = p.depth - p.depth.mean()
                 rm = np.append(((np.outer(depth, p.shape.ravel() @ span) - inside) / self.marker_std).ravel(),
                                outside / self.marker_std)
-        return self._assemble(params, p, rf, rm)
+        return self._assemble(params, rf, rm, excess)
+
+    @cached_property
+    def _bin_times(self) -> BinTimes:
+        """Where the solver asks the model's force when the readings are binned (``BinTimes``)."""
+        t = self.record.force_t[self._use]
+        ncols = self._force.shape[1]
+        at = None if self._bounds is None else self._bounds.at
+        return BinTimes(self._bins, t[self._live_at // ncols], self._live_node, self._live_force, ncols, t, at)
 
     def within_bins(self, params: dict[str, float]) -> float:
         """What the solver's rows leave out of the sum of squares at ``params``: the live
@@ -360,13 +441,15 @@ class WholeRecordProblem:
             out = np.concatenate([force, markers.reshape(-1, matrix.shape[1]), matrix[nf + tm * k + 1:]])
         return out.reshape(-1, *rows.shape[1:])
 
-    def _assemble(self, params: dict[str, float], p: Prediction, rf: np.ndarray, rm: np.ndarray) -> np.ndarray:
-        """The residual vector: live force readings, markers, the clocks' prior, the bounds."""
+    def _assemble(self, params: dict[str, float], rf: np.ndarray, rm: np.ndarray,
+                  excess: np.ndarray | None) -> np.ndarray:
+        """The residual vector: live force readings, markers, the clocks' prior, the bounds
+        (``excess``: ``ReadingBounds.excess`` of the prediction, N)."""
         prior = [params[n] / DELAY_PRIOR_STD for n in DELAYS] if self.delays else []
         parts = [rf.ravel(), rm.ravel(), prior]
-        if self._bounds is not None:
+        if excess is not None:
             with np.errstate(over="ignore", invalid="ignore"):
-                parts.append(self._bounds.excess(p.force) / self._noise_at(self._bounds.node))
+                parts.append(excess / self._noise_at(self._bounds.node))
         r = np.concatenate(parts)
         # A trial step whose model overflows (a stiffening law at a huge coefficient) fits
         # nothing: a large residual, not a NaN the solver cannot compare, nor a zero.
@@ -524,7 +607,6 @@ class ReadingBounds:
         self._ceiling = np.asarray(ceiling, float)[node]
         self._windows = windows
         self._in_window = None if windows is None else np.searchsorted(at, windows.flat)
-        self._window_flat = None if windows is None else windows.flat
         self._saturated = None if top is None else readings.ravel()[at] > top[node]
         self._top = None if top is None else top[node]
 
@@ -532,11 +614,13 @@ class ReadingBounds:
         """(at,) N: how far model forces (T, nodes) lie outside what the readings stand for:
         above the ``ceiling`` (positive), below a saturated reading's ``top`` (negative),
         outside their window's range (``ReadingWindows.excess``); 0 within them."""
-        flat = force.ravel()
-        f = flat[self.at]
+        return self.excess_at(force.ravel()[self.at])
+
+    def excess_at(self, f: np.ndarray) -> np.ndarray:
+        """``excess`` from the model's forces at the readings ``at`` alone (``f``, (at,) N)."""
         excess = np.maximum(f - self._ceiling, 0.0)
         if self._windows is not None and self._in_window.size:
-            excess[self._in_window] += self._windows.entry_excess(flat[self._window_flat])
+            excess[self._in_window] += self._windows.entry_excess(f[self._in_window])
         if self._top is not None:   # a saturated reading: the force was at least the top
             excess = np.where(self._saturated, np.minimum(f - self._top, 0.0), excess)
         return excess
@@ -750,8 +834,7 @@ def _discretisation_std(problem: WholeRecordProblem, params: dict[str, float], a
     readings (the model's floor: a misfit it leaves however the data were made)."""
     bounded = ~loose
     finer = problem.forward.finer()
-    r = [at_fit, replace(problem, forward=finer).residuals(params),
-         replace(problem, forward=finer.finer()).residuals(params)]
+    r = [at_fit, problem.on(finer).residuals(params), problem.on(finer.finer()).residuals(params)]
     dx = np.zeros((len(loose), 2))
     dx[bounded] = -np.linalg.lstsq(sol.jac[:, bounded], np.column_stack([problem.to_solver(r[1] - r[0]),
                                                                          problem.to_solver(r[2] - r[1])]),

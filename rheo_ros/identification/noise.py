@@ -172,7 +172,7 @@ def despiked(record: Record) -> Record:
     their neighbours: for the closed forms, which read the force at given instants and
     over windows rather than reading by reading (the fit and the comparison leave the
     spikes out instead)."""
-    spikes = sensor_noise(record).force_spikes
+    spikes = isolated_spikes(record.force, force_noise(record)[0])   # ``sensor_noise``'s, without the markers'
     if not spikes.any():
         return record
     force = record.force.copy()
