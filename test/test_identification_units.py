@@ -725,6 +725,25 @@ def test_force_noise_per_segment_and_the_markers(short_case):
     assert n.marker_samples == (rec.markers.shape[0] - 2) * rec.markers[0].size
 
 
+def test_a_records_noise_is_computed_once_and_shared_read_only(short_case):
+    """``force_noise`` and ``sensor_noise`` remember the last record they were asked of, by
+    identity: the same record gives the same answer object (a closed form's despiking and
+    its baseline, each fit's start), another record its own; the shared arrays are
+    read-only, so no caller can change another's."""
+    rec = noisy(short_case.record, force_std=0.02)
+    first = sensor_noise(rec)
+    assert sensor_noise(rec) is first and force_noise(rec) is force_noise(rec)
+    with pytest.raises(ValueError, match="read-only"):
+        first.force_std[0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        force_noise(rec)[1][0, 0] = False
+    other = noisy(short_case.record, force_std=0.04, seed=9)
+    again = sensor_noise(other)
+    assert again is not first and not np.allclose(again.force_std, first.force_std)
+    assert sensor_noise(rec) is not first   # the one remembered is now ``other``'s
+    np.testing.assert_array_equal(sensor_noise(rec).force_std, first.force_std)
+
+
 def test_force_noise_counts_only_live_readings(short_case):
     from rheo_ros.sensors import SensorReading, TactileArray
 

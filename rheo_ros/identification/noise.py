@@ -6,7 +6,10 @@ noise-free sensor.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 
@@ -92,6 +95,42 @@ def cells_noise(record: Record) -> np.ndarray:
     return tactile.segment_noise
 
 
+_T = TypeVar("_T")
+
+
+def _frozen(value):
+    """``value`` with its arrays read-only (a remembered answer is shared by its callers)."""
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    elif isinstance(value, tuple):
+        for v in value:
+            _frozen(v)
+    elif hasattr(value, "__dataclass_fields__"):
+        for name in value.__dataclass_fields__:
+            _frozen(getattr(value, name))
+    return value
+
+
+def _per_record(compute: Callable[[Record], _T]) -> Callable[[Record], _T]:
+    """``compute(record)`` remembered for the last record it was asked of, by identity (a
+    Record is frozen and its arrays are not written; the answer's arrays are made
+    read-only): a closed form asks the same record's noise twice (the despiking and the
+    baseline), a fit at every start, each candidate again. One entry, swapped whole, so
+    that threads asking for other records never read each other's."""
+    last: list[tuple[Record, _T] | None] = [None]
+
+    @functools.wraps(compute)
+    def remembered(record: Record) -> _T:
+        entry = last[0]
+        if entry is None or entry[0] is not record:
+            entry = (record, _frozen(compute(record)))
+            last[0] = entry
+        return entry[1]
+
+    return remembered
+
+
+@_per_record
 def force_noise(record: Record) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each tactile segment's noise over its live readings: (nodes,) std (N, NaN where
     too few live readings), (T, nodes) the live readings, (nodes,) differences counted.
@@ -181,6 +220,7 @@ def despiked(record: Record) -> Record:
     return replace(record, force=force)
 
 
+@_per_record
 def sensor_noise(record: Record) -> SensorNoise:
     """The noise of each tactile segment over its live readings, and of the markers; the
     readings that are isolated spikes are left out of the live ones."""
