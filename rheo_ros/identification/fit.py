@@ -384,14 +384,13 @@ class WholeRecordProblem:
         at = None if self._bounds is None else self._bounds.at
         return BinTimes(self._bins, t[self._live_at // ncols], self._live_node, self._live_force, ncols, t, at)
 
-    def within_bins(self, params: dict[str, float]) -> float:
-        """What the solver's rows leave out of the sum of squares at ``params``: the live
-        readings' scatter about their bins' means (0 without bins). The solver's cost plus
-        this is the whole record's."""
+    def within_bins(self, r: np.ndarray) -> float:
+        """What the solver's rows leave out of the sum of squares of ``r`` (``residuals``
+        at some parameters): the live readings' scatter about their bins' means (0 without
+        bins). The solver's cost plus this is the whole record's."""
         if self._bins is None:
             return 0.0
-        with np.errstate(over="ignore", invalid="ignore"):
-            rf = self._force_residuals(self.predict(params).force)
+        rf = r[:self._live_at.size]
         return float(rf @ rf - np.sum(self._bins.reduce(rf) ** 2))
 
     @property
@@ -953,7 +952,8 @@ def fit_record(
     params = unpack(sol.x)
     dof = max(problem.samples + len(DELAYS) - len(names), 1)
     solved = float(sol.fun @ sol.fun)   # the solver's cost: what a bound's range is judged on
-    cost = solved + problem.within_bins(params)
+    at_fit = problem.residuals(params)   # every reading, with the weights after the last pass
+    cost = solved + problem.within_bins(at_fit)
     chi2 = cost / dof
     cov_x, loose = _covariance(sol, pmap, chi2)
     held: dict[str, tuple[float, float]] = {}
@@ -976,13 +976,13 @@ def fit_record(
                 at_ends[:, i] += [-half_width, half_width]
                 low, high = sorted(float(pmap.values(x)[i]) for x in at_ends)
                 held[names[i]] = (low, high)
-        params = unpack(sol.x)
+            params = unpack(sol.x)
+            at_fit = problem.residuals(params)
     slope = pmap.slope(sol.x)
     cov = np.zeros((len(all_names), len(all_names)))
     free = np.array([all_names.index(n) for n in names])
     cov[np.ix_(free, free)] = cov_x * np.outer(slope, slope)
     cov[free[loose], free[loose]] = np.inf
-    at_fit = problem.residuals(params)   # with the weights after the last pass
     sys_std = np.zeros(len(names))
     # Float32 readings: half an ulp of the force per reading, a floor below any model's reach.
     floor = (np.append(np.sqrt(np.mean(record.force**2, axis=0)), 0.0) * np.finfo(np.float32).eps / 2)

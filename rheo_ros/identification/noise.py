@@ -6,6 +6,7 @@ noise-free sensor.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -105,9 +106,9 @@ def _frozen(value):
     elif isinstance(value, tuple):
         for v in value:
             _frozen(v)
-    elif hasattr(value, "__dataclass_fields__"):
-        for name in value.__dataclass_fields__:
-            _frozen(getattr(value, name))
+    elif dataclasses.is_dataclass(value):
+        for f in dataclasses.fields(value):
+            _frozen(getattr(value, f.name))
     return value
 
 

@@ -447,7 +447,7 @@ class OnlineEstimator:
     """
 
     MAX_SAMPLES = 500_000   # per stream, whatever happens (an hour at 100 Hz is 360 000)
-    READOUT_BLOCK = 64      # tactile frames added to the readout at once: a job flushes at most this many (1-2 ms at 256)
+    READOUT_BLOCK = 64      # tactile frames added to the readout at once (a job flushes up to this many)
 
     def __init__(self, setup: Setup, segmenter: SegmenterConfig | None = None,
                  config: EstimatorConfig | None = None) -> None:
