@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.integrate import LSODA, solve_ivp
+from scipy.integrate import odeint, solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
@@ -346,28 +346,56 @@ def _free_dynamics(ss: StateSpace, x: np.ndarray) -> tuple[np.ndarray, np.ndarra
 # The nonlinear response feeds finite-difference Jacobians (steps ~1.5e-8 relative): its
 # integration error must sit far below that, so its parameter dependence is smooth.
 ODE_RTOL = 1e-12
-# Steps a segment may take: a fit's wild trial can ask for millions at ODE_RTOL, each
-# keeping its dense-output interpolant (seen: 22 GB before the machine ran out); the
-# trial is then a failure (NaN stress: a large residual) like a diverging one.
-ODE_MAX_STEPS = 100_000
+# Evaluations of the law a segment may ask: a fit's wild trial can ask for millions at
+# ODE_RTOL (seen with solve_ivp, which keeps each step's interpolant: 22 GB before the
+# machine ran out); the trial is then a failure (NaN stress: a large residual) like a
+# diverging one. LSODA takes about two a step: some 100 000 steps.
+ODE_MAX_EVALUATIONS = 200_000
 
 
-class _BudgetedLSODA(LSODA):
-    """scipy's LSODA (it switches to BDF where the spring grows stiff: a fit's trial of a
-    huge k) that fails at its ``ODE_MAX_STEPS``-th step: a fit's
-    wild trial asks for millions of steps, each keeping its dense output (``solve_ivp``
-    has no cap of its own; a terminal event counting the steps cost a sixth of a
-    stiffening's fit, evaluated after every step)."""
+class _OutOfBudget(Exception):
+    """A segment's integration asked its law more than ``ODE_MAX_EVALUATIONS`` times."""
 
-    def __init__(self, *args, **kwargs) -> None:
-        super().__init__(*args, **kwargs)
-        self.steps = 0
 
-    def _step_impl(self):
-        self.steps += 1
-        if self.steps >= ODE_MAX_STEPS:
-            return False, f"out of steps ({ODE_MAX_STEPS})"
-        return super()._step_impl()
+def _budgeted(rhs: Callable) -> Callable:
+    """``rhs`` that raises ``_OutOfBudget`` at its ``ODE_MAX_EVALUATIONS``-th call: one cap
+    on steps, time and memory for either solver (neither has its own on the whole call)."""
+    calls = 0
+
+    def counted(t: float, y: np.ndarray, rate: float | None) -> list[float]:
+        nonlocal calls
+        calls += 1
+        if calls > ODE_MAX_EVALUATIONS:
+            raise _OutOfBudget
+        return rhs(t, y, rate)
+    return counted
+
+
+def _lsoda_at(rhs: Callable, y0: np.ndarray, start: float, stop: float, at: np.ndarray, rate: float | None,
+              atol: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The states at the sorted times ``at`` (within [start, stop]) and at ``stop``, from
+    ``y0`` at ``start``, by LSODA through ``odeint``: its Fortran loop steps and
+    interpolates to each time without a Python call per step (``solve_ivp`` keeps every
+    step's interpolant: 60 % of a stiffening's solve). None where it fails or runs out of
+    its budget (a fit's wild trial)."""
+    # LSODA refuses to start towards a time within rounding of the start ("illegal input":
+    # a sample on the segment's first instant): there the state is the start's.
+    near = at - start <= 100.0 * np.finfo(float).eps * max(abs(start), abs(stop), 1.0)
+    if stop - start <= 100.0 * np.finfo(float).eps * max(abs(start), abs(stop), 1.0):
+        return np.repeat(np.asarray(y0, dtype=float)[:, None], at.size, axis=1), np.asarray(y0, dtype=float)
+    times = np.concatenate([[start], at[~near], [stop]])
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        try:   # no cap per output interval (a gap in the samples may need many steps): the budget's
+            ys = odeint(_budgeted(rhs), y0, times, args=(rate,), tfirst=True, rtol=ODE_RTOL, atol=atol,
+                        mxstep=ODE_MAX_EVALUATIONS, tcrit=[stop])
+        except _OutOfBudget:
+            return None
+    if said or not np.all(np.isfinite(ys[-1])):   # LSODA's failures are warnings
+        return None
+    states = np.empty((ys.shape[1], at.size))
+    states[:, near], states[:, ~near] = ys[:1].T, ys[1:-1].T
+    return states, ys[-1]
 
 
 def three_element_and_arms(element: Element) -> tuple[tuple[float, float, float], list[tuple[float, float]]]:
@@ -407,8 +435,9 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     """As :func:`respond`, with the base's Voigt spring nonlinear: its stress is
     ``E height spring(u_v / height)`` at Voigt displacement ``u_v`` (``spring(eps)``:
     stress per unit E at nominal strain, ``eps`` to first order). No closed form exists,
-    so scipy's ``solve_ivp`` (LSODA, ``ODE_RTOL``) integrates the states (Voigt
-    displacement, displacement, each arm's stress) segment by segment.
+    so LSODA (``ODE_RTOL``) integrates the states (Voigt displacement, displacement, each
+    arm's stress) segment by segment: ``odeint`` at the samples, ``solve_ivp`` where an
+    event ends the segment (the stage reached, the stress gone).
 
     Driven: ``sigma3 = (c1 c2 rate + c2 f) / (c1 + c2)``, ``u_v' = (sigma3 - f) / c1``;
     stress-free: the arms' stress balances the base's, ``sigma3 = -sum(arms)`` and
@@ -419,26 +448,23 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
         raise ValueError("times must be sorted")
     (E, c1, c2), arms = three_element_and_arms(element)
     k = np.array([a[0] for a in arms])
-    rate_k = np.array([a[0] / a[1] for a in arms])
 
-    def voigt_force(uv: float) -> float:
-        return E * height * float(spring(np.array([uv / height]))[0])
+    # LSODA calls this a million times in a stiffening's fit: Python floats and lists
+    # (odeint takes any sequence), no array built per call but the spring's own.
+    c1_, c2_, eh = float(c1), float(c2), float(E * height)
+    arm_k = [(float(a), float(a / b)) for a, b in arms]
 
-    # The solver calls this a million times in a stiffening's fit: Python floats, one array.
-    c1_, c2_, n = float(c1), float(c2), 2 + len(arms)
-
-    def rhs(_t: float, y: np.ndarray, rate: float | None) -> np.ndarray:
-        arm = y[2:]
-        f = voigt_force(float(y[0]))
-        out = np.empty(n)
+    def rhs(_t: float, y: np.ndarray, rate: float | None) -> list[float]:
+        f = eh * float(spring(y[:1] / height)[0])
         if rate is None:
-            s3 = -float(arm.sum())
+            s3 = -sum(y[2:].tolist()) if arm_k else 0.0
             du = ((c1_ + c2_) * s3 - c2_ * f) / (c1_ * c2_)
         else:
             s3 = (c1_ * c2_ * rate + c2_ * f) / (c1_ + c2_)
             du = rate
-        out[0], out[1] = (s3 - f) / c1_, du
-        out[2:] = k * du - rate_k * arm
+        out = [(s3 - f) / c1_, du]
+        if arm_k:
+            out += [ki * du - ri * si for (ki, ri), si in zip(arm_k, y[2:].tolist())]
         return out
 
     def total_stress(y: np.ndarray, rate: float | None) -> np.ndarray:
@@ -457,9 +483,11 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")   # LSODA's own complaints: a failure is reported below
             try:
-                sol = solve_ivp(rhs, span, y0, method=_BudgetedLSODA, rtol=ODE_RTOL, atol=ODE_RTOL * typical,
+                sol = solve_ivp(_budgeted(rhs), span, y0, method="LSODA", rtol=ODE_RTOL, atol=ODE_RTOL * typical,
                                 args=(rate,), dense_output=True, events=events)
             except ValueError:   # steps of zero length (a stiff trial): no dense output, a failed trial
+                return None
+            except _OutOfBudget:
                 return None
         if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
             return None   # failed, or out of steps: a trial the fit rejects, never the machine's memory
@@ -507,19 +535,26 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
                 unloaded.terminal, unloaded.direction = True, -1   # type: ignore[attr-defined]
                 events = unloaded
         if stop > start:
-            sol = integrate(rate, (start, stop), y, events)
+            if events is None:   # no event to find: LSODA at the samples themselves
+                at = _lsoda_at(rhs, y, start, stop, t[inside], rate, ODE_RTOL * typical)
+                sol = None if at is None else True
+            else:
+                sol = integrate(rate, (start, stop), y, events)
             if sol is None:
                 # A law the solver cannot follow (a fit's trial of an absurd coefficient):
                 # no response, which the fit reads as the worst of fits.
                 stress[t >= start] = np.nan
                 strain[t >= start] = np.nan
                 return Response(t, stress, strain, t_release)
-            if events is not None and sol.t_events[0].size:
-                stop, let_go = float(sol.t_events[0][0]), True
-                t_release = stop
-                inside &= t < stop
-            ys = sol.sol(t[inside]) if inside.any() else np.zeros((y.size, 0))
-            y = sol.y[:, -1]
+            if events is None:
+                ys, y = at
+            else:
+                if sol.t_events[0].size:
+                    stop, let_go = float(sol.t_events[0][0]), True
+                    t_release = stop
+                    inside &= t < stop
+                ys = sol.sol(t[inside]) if inside.any() else np.zeros((y.size, 0))
+                y = sol.y[:, -1]
         else:
             inside &= False
             ys = np.zeros((y.size, 0))
