@@ -380,8 +380,9 @@ def _lsoda_at(rhs: Callable, y0: np.ndarray, start: float, stop: float, at: np.n
     its budget (a fit's wild trial)."""
     # LSODA refuses to start towards a time within rounding of the start ("illegal input":
     # a sample on the segment's first instant): there the state is the start's.
-    near = at - start <= 100.0 * np.finfo(float).eps * max(abs(start), abs(stop), 1.0)
-    if stop - start <= 100.0 * np.finfo(float).eps * max(abs(start), abs(stop), 1.0):
+    rounding = 100.0 * np.finfo(float).eps * max(abs(start), abs(stop), 1.0)
+    near = at - start <= rounding
+    if stop - start <= rounding:
         return np.repeat(np.asarray(y0, dtype=float)[:, None], at.size, axis=1), np.asarray(y0, dtype=float)
     times = np.concatenate([[start], at[~near], [stop]])
     with warnings.catch_warnings(record=True) as said:
@@ -536,18 +537,19 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
                 events = unloaded
         if stop > start:
             if events is None:   # no event to find: LSODA at the samples themselves
-                at = _lsoda_at(rhs, y, start, stop, t[inside], rate, ODE_RTOL * typical)
-                sol = None if at is None else True
+                at_samples = _lsoda_at(rhs, y, start, stop, t[inside], rate, ODE_RTOL * typical)
+                failed = at_samples is None
             else:
                 sol = integrate(rate, (start, stop), y, events)
-            if sol is None:
+                failed = sol is None
+            if failed:
                 # A law the solver cannot follow (a fit's trial of an absurd coefficient):
                 # no response, which the fit reads as the worst of fits.
                 stress[t >= start] = np.nan
                 strain[t >= start] = np.nan
                 return Response(t, stress, strain, t_release)
             if events is None:
-                ys, y = at
+                ys, y = at_samples
             else:
                 if sol.t_events[0].size:
                     stop, let_go = float(sol.t_events[0][0]), True
