@@ -273,6 +273,15 @@ def test_a_linear_voigt_spring_integrated_gives_the_exact_response():
         warnings.simplefilter("error")
         broken = respond_voigt_spring(base, lambda eps: np.where(eps > 0.05, np.nan, eps), 0.08, program, t)
     assert np.isnan(broken.stress[t >= 1.0]).all() and not np.isnan(broken.stress[t < 1.0]).any()
+    # A law that warns but answers (a user's law, a deprecation) is integrated all the same.
+
+    def warns(eps):
+        warnings.warn("a user's law says something", UserWarning)
+        return eps
+
+    with warnings.catch_warnings(record=True):
+        talkative = respond_voigt_spring(element, warns, 0.08, program, t)
+    np.testing.assert_allclose(talkative.stress, integrated.stress, rtol=0, atol=1e-9 * np.max(exact.stress))
 
 
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.integrate import odeint, solve_ivp
+from scipy.integrate import ODEintWarning, odeint, solve_ivp
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
@@ -386,13 +386,16 @@ def _lsoda_at(rhs: Callable, y0: np.ndarray, start: float, stop: float, at: np.n
         return np.repeat(np.asarray(y0, dtype=float)[:, None], at.size, axis=1), np.asarray(y0, dtype=float)
     times = np.concatenate([[start], at[~near], [stop]])
     with warnings.catch_warnings(record=True) as said:
-        warnings.simplefilter("always")
+        # LSODA's failures are warnings of its own; the law's (a trial's overflow) are not
+        # the user's, as on solve_ivp's path, and a non-finite state says the rest.
+        warnings.simplefilter("ignore")
+        warnings.simplefilter("always", ODEintWarning)
         try:   # no cap per output interval (a gap in the samples may need many steps): the budget's
             ys = odeint(_budgeted(rhs), y0, times, args=(rate,), tfirst=True, rtol=ODE_RTOL, atol=atol,
                         mxstep=ODE_MAX_EVALUATIONS, tcrit=[stop])
         except _OutOfBudget:
             return None
-    if said or not np.all(np.isfinite(ys[-1])):   # LSODA's failures are warnings
+    if said or not np.all(np.isfinite(ys[-1])):
         return None
     states = np.empty((ys.shape[1], at.size))
     states[:, near], states[:, ~near] = ys[:1].T, ys[1:-1].T
@@ -448,7 +451,6 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
     if np.any(np.diff(t) < 0):
         raise ValueError("times must be sorted")
     (E, c1, c2), arms = three_element_and_arms(element)
-    k = np.array([a[0] for a in arms])
 
     # LSODA calls this a million times in a stiffening's fit: Python floats and lists
     # (odeint takes any sequence), no array built per call but the spring's own.
@@ -476,7 +478,7 @@ def respond_voigt_spring(element: Element, spring: Callable[[np.ndarray], np.nda
 
     stress, strain = np.zeros_like(t), np.zeros_like(t)
     y = np.zeros(2 + len(arms))
-    typical = np.concatenate([[1e-2 * height] * 2, 1e-2 * height * k])   # a 1 % strain, its arm stresses
+    typical = 1e-2 * height * np.array([1.0, 1.0] + [ki for ki, _ in arm_k])   # a 1 % strain, its arm stresses
     start = planned = program.t0
     let_go, t_release = False, None
 
