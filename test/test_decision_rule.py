@@ -344,6 +344,25 @@ def test_the_effect_named_lowers_the_bic_most_where_the_model_misfits():
     assert choose([]) == (None, ())
 
 
+def test_of_a_tie_the_one_effect_that_completes_the_model_is_named():
+    """Generator seed 16 bag 23 (a stiffening found, a settling drift of each segment
+    hidden beside it): a held adhesion and a drift per segment both pass, 6.8 apart where
+    the model misfits, but only the drift leaves no phase misfitting (the adhesion leaves
+    the keep 5 sd over). The drift is named; with both or neither completing, undecided; a
+    candidate outside the tie does not count."""
+    keep = ("force in the keep (5.07 sd)", "force in the release (5.89 sd)")
+    drift = candidate("sensor_drift", -34.8, misfit=-14.6, clears=keep)
+    adhesion = candidate("adhesion", -13.0, misfit=-21.4)
+    assert drift.completes and not adhesion.completes
+    assert choose([drift, adhesion]) == ("sensor_drift", ())
+    assert choose([replace(drift, clears=()), adhesion]) == (None, ("adhesion", "sensor_drift"))
+    assert choose([drift, replace(adhesion, clears=keep)]) == (None, ("adhesion", "sensor_drift"))
+    far = candidate("adhesion", -60.0, misfit=-14.6 - BIC_DECISIVE)
+    assert choose([drift, far]) == ("adhesion", ())
+    arm = candidate("relaxation_branch", -30.0, misfit=-19.0, clears=keep)
+    assert choose([drift, adhesion, arm]) == (None, ("adhesion", "relaxation_branch", "sensor_drift"))
+
+
 def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
     cands = (candidate("relaxation_branch", -30.0), candidate("adhesion", np.inf, rmse=np.nan, explained=np.inf,
                                                               determined=False))

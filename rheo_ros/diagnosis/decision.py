@@ -59,7 +59,9 @@ not quite converged) from being claimed as an effect that can absorb it: a drift
 offset fitted to a bias in the keep is no drift when the readings before contact
 and after release are clean. When the best two candidates are within
 ``BIC_DECISIVE`` of each other, the data cannot decide between them, and the
-diagnosis says so and names the experiments that would.
+diagnosis says so and names the experiments that would; unless exactly one of them
+completes a model with effects added (``Candidate.clears``): the others leave a phase
+misfitting that only one more effect could take up.
 
 The effects the loop added are named missing only when they explain the data
 (``Verdict.explained``): with them the model fits within the noise (the rule that calls
@@ -508,16 +510,24 @@ def misfit_delta_bic(current: ModelFit, with_effect: ModelFit) -> float:
 def choose(tried: Sequence[Candidate]) -> tuple[str | None, tuple[str, ...]]:
     """The missing effect, or the effects the data cannot tell apart: of the eligible
     candidates (none: those that complete the model, ``Candidate.completes``) the one with
-    the lowest ``misfit_delta_bic``, unless another is within ``BIC_DECISIVE`` of it (then
-    both or all such are undecided); with none, the ones the data ask for but do not pin
-    down are undecided."""
+    the lowest ``misfit_delta_bic``, unless another is within ``BIC_DECISIVE`` of it: then
+    the one of them that completes the model, if exactly one does (one effect explaining
+    the whole footprint before one that needs another beside it: generator seed 16 bag 23,
+    a settling drift of each segment beside a stiffening, read as well where the model
+    misfit by a held adhesion that left the keep 5 sd over), else all of them are
+    undecided; with none, the ones the data ask for but do not pin down are undecided."""
     eligible = [c for c in tried if c.eligible] or [c for c in tried if c.completes]
     eligible.sort(key=lambda c: (c.misfit_delta_bic, c.delta_bic, c.effect))
     if not eligible:
         return None, tuple(c.effect for c in tried if (c.significant or c.clears) and not c.contradicted)
     best = eligible[0]
-    rivals = tuple(c.effect for c in eligible[1:] if c.misfit_delta_bic - best.misfit_delta_bic < BIC_DECISIVE)
-    return (None, (best.effect, *rivals)) if rivals else (best.effect, ())
+    tied = [best, *(c for c in eligible[1:] if c.misfit_delta_bic - best.misfit_delta_bic < BIC_DECISIVE)]
+    # Of a tie, the one effect that completes the model: the others, as good where the model
+    # misfits, leave a phase misfitting that only a further effect could take up.
+    whole = [c for c in tied if c.completes]
+    if len(tied) > 1 and len(whole) == 1:
+        return whole[0].effect, ()
+    return (None, tuple(c.effect for c in tied)) if len(tied) > 1 else (best.effect, ())
 
 
 def judged_where(current: ModelFit, cls: type) -> tuple[tuple[str, ...], tuple[str, ...]]:
