@@ -789,7 +789,8 @@ def _shaped(like: Any, numbers: Any) -> Any:
 
 
 def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
-              quick: bool = False, outside: bool = False) -> dict[str, Any]:
+              quick: bool = False, outside: bool = False, limit: tuple[str, float] | None = None
+              ) -> dict[str, Any]:
     """The diagnosis bench's protocol (``rheo bench diagnosis --generator test/generator.py``):
     draw bag ``index`` from ``rng``, write it at ``out_dir`` (its .truth.json and
     .params.yaml beside it) and return its truth in the package's vocabulary.
@@ -798,8 +799,20 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
     0.2..0.45; depth 5..12 mm, keep 15..40 s, release 20..40 s (quick: 15..18, 20..24 s);
     a sensor of ``SENSORS`` but the noise-free one, its noises times ``noise_scale``;
     ``index mod 3`` hidden effects of distinct families (``bench_effect``); with
-    ``outside``, none of them but one effect in no catalogue (``bench_outside``)."""
+    ``outside``, none of them but one effect in no catalogue (``bench_outside``); with
+    ``limit`` (family, readable size), one effect of that family scaled to that size
+    (``_at_size``)."""
     material, profile, base, sensor, layout, seed = _bench_draw(rng, noise_scale, quick)
+    if limit is not None:
+        family, size = limit
+        form, fields, values = bench_effect(rng, family, material, profile, layout.height)
+        fields, values, sizes = _at_size(family, fields, values, size, material, sensor, seed, profile, layout)
+        generate(out_dir, material=material, effects=Effects(**fields), sensor=sensor, seed=seed, profile=profile,
+                 layout=layout)
+        return {"hidden": [{"effect": family, "form": form, "params": values, **sizes}], **sizes,
+                "params_file": str(out_dir.with_name(out_dir.name + ".params.yaml")),
+                "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name, "noise": sensor.noise,
+                         "material": asdict(material)}}
     if outside:
         name = str(rng.choice(BENCH_OUTSIDE))
         fields, values, signal = bench_outside(rng, name)
@@ -822,6 +835,46 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
             "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name, "noise": sensor.noise,
                      "marker_noise": sensor.marker_noise, "material": asdict(material),
                      "depth": profile.depth, "keep_time": profile.keep_time, "release_time": profile.release_time}}
+
+
+def _amplified(fields: dict[str, Any], values: dict[str, float], c: float
+               ) -> tuple[dict[str, Any], dict[str, float]]:
+    """A drawn effect (``bench_effect``'s fields and values) with its amplitude times ``c``:
+    the stiffening's k, the adhesion's p0, each arm's stiffness, the drift's size or each
+    column's rate (times and spreads kept)."""
+    key, v = next(iter(fields.items()))
+    if key == "stiffening":
+        return {key: v * c}, {"k": v * c}
+    if key == "maxwell":
+        arms = tuple((E * c, tau) for E, tau in v)
+        return {key: arms}, {f"{k}_{i + 1}": x for i, arm in enumerate(arms) for k, x in zip(("E", "tau"), arm)}
+    name = {"adhesion": "p0", "drift": "a", "column_drift": "r"}[key]
+    return {key: (v[0] * c, *v[1:])}, {**values, name: values[name] * c}
+
+
+# A limit bag's readable size within this share of its target (``_at_size``), in this many
+# steps, its amplitude within these factors of the draw's.
+LIMIT_TOLERANCE, LIMIT_STEPS, LIMIT_SCALES = 0.03, 8, (1e-3, 1e3)
+
+
+def _at_size(family: str, fields: dict[str, Any], values: dict[str, float], size: float, material: Material,
+             sensor: Sensor, seed: int, profile: Profile, layout: Layout
+             ) -> tuple[dict[str, Any], dict[str, float], dict[str, float]]:
+    """``bench_effect``'s draw of ``family`` scaled (``_amplified``, the secant on log size)
+    until its readable size (``size_live``) is within ``LIMIT_TOLERANCE`` of ``size``; where
+    the sensor does not let it (an adhesion under a dead band reads nothing until its force
+    crosses the band) the last try. Returns its fields, values and sizes."""
+    scale = 1.0
+    for _ in range(LIMIT_STEPS):
+        scaled, named = _amplified(fields, values, scale)
+        sizes = bench_sizes(material, Effects(**scaled), sensor, seed, profile, layout)
+        if abs(sizes["size_live"] / size - 1.0) <= LIMIT_TOLERANCE:
+            break
+        step = size / sizes["size_live"] if sizes["size_live"] > 0.0 else 10.0
+        if not LIMIT_SCALES[0] <= scale * step <= LIMIT_SCALES[1]:
+            break   # a saturated array reads no more of a larger effect: stop at the last try
+        scale *= step
+    return scaled, named, sizes
 
 
 def bench_separable_sizes(rng: np.random.Generator, index: int, noise_scale: float = 1.0,

@@ -268,6 +268,32 @@ def test_the_generator_makes_out_of_catalogue_bags_and_the_simulator_refuses_to(
         diagnosis.run(replicates=1, outside=True)
 
 
+@pytest.mark.parametrize("source", [None, str(GENERATOR)], ids=["simulator", "generator"])
+def test_a_limit_run_hides_one_effect_of_the_family_at_the_size_drawn(source):
+    """``--limit relaxation_branch:1.5:3``: each bag hides one arm (or two) scaled until its
+    readable size is within ``LIMIT_TOLERANCE`` (3 %) of the target drawn for it, in both
+    sources; the run says so and merges only with limit runs of the same family and range."""
+    result = diagnosis.run(replicates=1, seed=8, quick=True, generator=source, limit="relaxation_branch:1.5:3")
+    [row] = result["bags"]
+    assert [h["effect"] for h in row["hidden"]] == ["relaxation_branch"], row["message"]
+    assert 1.5 <= row["limit_size"] <= 3.0
+    assert row["hidden"][0]["size_live"] == pytest.approx(row["limit_size"], rel=diagnosis.LIMIT_TOLERANCE)
+    assert row["size_live"] == pytest.approx(row["hidden"][0]["size_live"], rel=1e-9)
+    assert result["limit"] == "relaxation_branch:1.5:3" and "limit" in diagnosis.MERGED_AS_ONE
+    assert row["outcome"] in diagnosis.OUTCOMES and "size_separable" not in row["hidden"][0]
+    json.dumps(result)
+
+
+def test_a_limit_is_a_family_and_a_range_of_sizes():
+    assert diagnosis.parse_limit("adhesion:1:6") == ("adhesion", 1.0, 6.0)
+    for bad in ("adhesion", "adhesion:1", "adhesion:a:6", "adhesion:6:1", "adhesion:0:6", "damage:1:6",
+                "adhesion:1:6:9"):
+        with pytest.raises(ValueError, match="--limit"):
+            diagnosis.parse_limit(bad)
+    with pytest.raises(ValueError, match="--limit: the bags hide one effect of the catalogue"):
+        diagnosis.run(replicates=1, generator=str(GENERATOR), outside=True, limit="adhesion:1:6")
+
+
 def _run_file(path: Path, seed, rows, noise_scale=1.0) -> Path:
     """A made-up run's ``--json``: made-up rows, each with its index and times."""
     rows = [{**r, "index": i, "seconds": 1.0 + i, "make_seconds": 0.5, "message": "", "undecided": []}

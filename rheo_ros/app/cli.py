@@ -323,17 +323,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     bench = sub.add_parser("bench", help="benchmarks").add_subparsers(dest="bench", required=True)
 
-    def bench_command(name: str, text: str, **options: tuple[type, Any, str]) -> None:
-        """``rheo bench NAME``: its options (type, default, help; ``bool``: a flag, ``str``
-        with default None: a path given or not), ``--json``, run by ``_bench``, which
+    def bench_command(name: str, text: str, **options: tuple) -> None:
+        """``rheo bench NAME``: its options (type, default, help and, for an option given or
+        not, its metavar (default PATH); ``bool``: a flag, ``str`` with default None: a path
+        given or not), ``--json``, run by ``_bench``, which
         passes each option to the bench's ``run`` under its name (``-`` as ``_``)."""
         b = bench.add_parser(name, help=text)
-        for option, (kind, default, what) in options.items():
+        for option, (kind, default, what, *shape) in options.items():
             flag = f"--{option.replace('_', '-')}"
             if kind is bool:
                 b.add_argument(flag, dest=option, action="store_true", help=what)
             elif default is None:
-                b.add_argument(flag, dest=option, type=kind, metavar="PATH" if kind is str else None, help=what)
+                b.add_argument(flag, dest=option, type=kind, metavar=shape[0] if shape else "PATH" if kind is str else None,
+                               help=what)
             else:
                 shown = default if isinstance(default, str) else f"{default:g}"
                 b.add_argument(flag, dest=option, type=kind, default=default, help=f"{what} (default {shown})")
@@ -361,7 +363,10 @@ def build_parser() -> argparse.ArgumentParser:
                   outside=(bool, False, "each bag hides an effect in no catalogue instead (needs --generator): "
                                         "how often a wrong effect is named"),
                   merge=(str, None, "comma-separated --json files of earlier runs of one bench (each its own "
-                                    "seed) to score as one instead: a long bench made in parts"))
+                                    "seed) to score as one instead: a long bench made in parts"),
+                  limit=(str, None, "FAMILY:LO:HI: every bag hides one effect of FAMILY scaled to a readable size "
+                                    "log-uniform in [LO, HI] x the total-force noise (the threshold measured "
+                                    "where random draws leave a gap)", "FAMILY:LO:HI"))
     bench_command("mesh", "identification error against the FE mesh's refinement (data from a finer mesh)")
     bench_command("simulator", "simulator speed as a multiple of real time (bag written directly)")
     bench_command("scaling", "rheo analyze's time and peak memory (all processes) against the record's length and "

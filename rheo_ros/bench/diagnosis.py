@@ -24,6 +24,14 @@ in no catalogue (a sensor with memory, a camera's drift, ...) and none of the
 catalogue's, and the truth lists it in ``outside`` (``{"effect": its name, "signal":
 force or markers, "size": float, "params": {...}}``, ``size`` in that signal's noise).
 
+A source may also take ``limit=(family, size)`` (``--limit``): the bag then hides exactly
+one effect of that family, in a form drawn as usual, its amplitude scaled until its
+readable size (``size_live``, below) is within ``LIMIT_TOLERANCE`` of ``size`` (where the
+sensor lets it: an adhesion under a dead band reads nothing until its force crosses the
+band, then much; the truth keeps the size reached). Random draws spread the sizes over
+decades, so a threshold read off them is bounded by the largest miss and the next hit;
+a limit run puts its bags between (``FAMILY:LO:HI``: targets log-uniform in that range).
+
 The **effect size** is the RMS over the force readings of the change the hidden effects
 make in the noise-free total bottom force, over the std of the total force's noise
 (``sqrt(cells) x cell noise x cell area``); ``size_live`` is the same through the
@@ -135,6 +143,15 @@ SIMULATOR = "rheo_ros simulator"
 # 1e-5 N a node (stop 56; 1: from 3e-3 N, no "draws" in the JSON).
 SIMULATOR_DRAWS = 2
 FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift")
+# A limit run's bag (``--limit``): its effect's readable size within this share of the
+# target, reached by scaling the amplitudes (``LIMIT_AMPLITUDES``) at most LIMIT_STEPS times.
+LIMIT_TOLERANCE = 0.03
+LIMIT_STEPS = 8
+LIMIT_SCALES = (1e-3, 1e3)   # the amplitudes within these factors of the draw's
+# The simulator's fields scaled together to set an effect's size (its times kept).
+LIMIT_AMPLITUDES = {"relaxation_branch": ("stiffness", "viscosity", "stiffness_2", "viscosity_2"),
+                    "adhesion": ("fraction",), "strain_stiffening": ("coefficient",),
+                    "sensor_drift": ("offset", "amplitude", "rate")}
 OUTCOMES = ("exact", "missed", "extra", "unexplained", "undecided", "refused", "failed")
 OUTSIDE_OUTCOMES = ("unexplained", "missed", "wrong", "undecided", "refused", "failed")
 NO_ANSWER = ("refused", "failed")   # outcomes with no analysis to score
@@ -337,19 +354,51 @@ def separable_size(setup: Setup, force_t: np.ndarray, marker_t: np.ndarray, inde
 
 
 def simulator_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
-                  quick: bool = False) -> dict[str, Any]:
+                  quick: bool = False, limit: tuple[str, float] | None = None) -> dict[str, Any]:
     """The package's simulator as a bench source (:data:`BagSource`): draw, simulate and
     write bag ``index`` at ``out_dir``; its truth, each effect's size alone (only the
-    catalogue's effects: no ``outside``)."""
-    hidden, params, seed = draw_bag(rng, index, noise_scale, quick)
-    setup = Setup(check_params(params, f"bag {index}"))
-    run = simulate_run(setup, seed)
+    catalogue's effects: no ``outside``). ``limit``: (family, readable size) of the one
+    effect to hide (module docstring)."""
+    if limit is None:
+        hidden, params, seed = draw_bag(rng, index, noise_scale, quick)
+        setup = Setup(check_params(params, f"bag {index}"))
+        run = simulate_run(setup, seed)
+    else:
+        hidden, params, seed, setup, run = _limit_bag(rng, index, noise_scale, quick, *limit)
     write_run(run, {**setup.params, "simulator.seed": seed}, out_dir)
     for h, effect in zip(hidden, setup.model().effects):
         h |= effect_size(setup, run.tactile_t, run.marker_t, (effect,))
     info = {k: v for k, v in params.items() if not k.startswith(("effects.", "simulator."))}
     return {"hidden": hidden, **effect_size(setup, run.tactile_t, run.marker_t), "params_file": None,
             "info": info | {"seed": seed}}
+
+
+def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: bool, family: str, size: float
+               ) -> tuple[list[dict[str, Any]], dict[str, Any], int, Setup, Any]:
+    """``simulator_bag``'s bag for ``limit``: one effect of ``family`` (its form and values
+    drawn as ``draw_bag`` draws them) with its ``LIMIT_AMPLITUDES`` scaled by the secant on
+    log size until its readable size is within ``LIMIT_TOLERANCE`` of ``size``."""
+    if family not in FAMILIES:
+        raise ValueError(f"--limit: {family!r} is not one of the simulator's families ({', '.join(FAMILIES)})")
+    params = draw_params(rng, noise_scale, quick)
+    form = str(rng.choice(simulator_forms(family)))
+    values = draw_effect(rng, family, form, params["material.E"], params["stage.keep_time"])
+    seed = int(rng.integers(0, 2**31 - 1))
+    scale = 1.0
+    for _ in range(LIMIT_STEPS):
+        scaled = {k: v * scale if k in LIMIT_AMPLITUDES[family] else v for k, v in values.items()}
+        flat = params | {f"effects.{family}.form": form} | {f"effects.{family}.{k}": v for k, v in scaled.items()} \
+            | {"simulator.effects": [family]}
+        setup = Setup(check_params(flat, f"bag {index}"))
+        run = simulate_run(setup, seed)
+        reached = effect_size(setup, run.tactile_t, run.marker_t)["size_live"]
+        if abs(reached / size - 1.0) <= LIMIT_TOLERANCE:
+            break
+        step = size / reached if reached > 0.0 else 10.0
+        if not LIMIT_SCALES[0] <= scale * step <= LIMIT_SCALES[1]:
+            break   # a saturated array reads no more of a larger effect: stop at the last try
+        scale *= step
+    return [{"effect": family, "form": form, "params": scaled}], flat, seed, setup, run
 
 
 # --- any source: loading, checking, running one bag ---------------------------------
@@ -479,11 +528,13 @@ def outcome(hidden: Iterable[str], named: Iterable[str], undecided: bool = False
 
 
 def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: Path,
-            noise_scale: float = 1.0, quick: bool = False, outside: bool = False) -> dict[str, Any]:
+            noise_scale: float = 1.0, quick: bool = False, outside: bool = False,
+            limit: tuple[str, float] | None = None) -> dict[str, Any]:
     """Make, analyse and delete one bag; its row of the result (module docstring).
     ``hidden`` stays None when the source fails: what it hid is not known. ``outside``:
     the source hides an effect in no catalogue (``outside`` in the row, scored by
-    :func:`outside_outcome`)."""
+    :func:`outside_outcome`). ``limit``: (family, readable size) of the one effect the
+    source hides (``--limit``; the row keeps the target as ``limit_size``)."""
     row: dict[str, Any] = {
         "index": index, "hidden": None, "outside": [], "size": 0.0, "size_live": 0.0, "info": {}, "named": [],
         "forms": {}, "undecided": [], "explained": None, "outcome": "failed", "force_rms_to_noise": None,
@@ -494,8 +545,13 @@ def run_bag(source: BagSource, index: int, rng: np.random.Generator, directory: 
     scratch.mkdir()
     try:
         t0 = time.perf_counter()
-        made = source(rng, index, scratch / "bag", noise_scale, quick, outside=True) if outside else \
-            source(rng, index, scratch / "bag", noise_scale, quick)
+        if outside:
+            made = source(rng, index, scratch / "bag", noise_scale, quick, outside=True)
+        elif limit is not None:
+            made = source(rng, index, scratch / "bag", noise_scale, quick, limit=limit)
+            row["limit_size"] = limit[1]
+        else:
+            made = source(rng, index, scratch / "bag", noise_scale, quick)
         truth = check_truth(made, index)
         row |= {k: truth[k] for k in ("hidden", "size", "size_live")} | {"info": truth.get("info", {}),
                                                                           "outside": truth.get("outside", [])}
@@ -668,7 +724,7 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
 
 def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: float = 1.0,
         generator: str | None = None, target: float | None = None, plot: str | None = None,
-        outside: bool = False, merge: str | None = None) -> dict[str, Any]:
+        outside: bool = False, merge: str | None = None, limit: str | None = None) -> dict[str, Any]:
     """Make, analyse and score ``replicates`` bags from the source ``generator`` (a file
     defining :data:`PROTOCOL`; None: the package's simulator). Bag ``i`` draws from
     ``default_rng((seed, i))``. ``target``: default by the noise (:func:`default_target`);
@@ -676,7 +732,9 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     effect in no catalogue instead. ``merge``: comma-separated JSON files of earlier runs
     (``--json``) to score together instead (:func:`merged`): no bag is made; with
     ``generator``, its :data:`SEPARABLE` function gives the bags' separable sizes the runs
-    lack."""
+    lack. ``limit``: ``FAMILY:LO:HI``, every bag hides one effect of that family at a
+    readable size drawn log-uniform in [LO, HI] from ``default_rng((seed, i, 1))`` (module
+    docstring; no separable sizes)."""
     if merge:
         result = merged([Path(f) for f in merge.split(",") if f], target,
                         separable_source(generator) if generator else None)
@@ -686,14 +744,19 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
         return result
     if outside and generator is None:
         raise ValueError("--outside: the package's simulator has only the catalogue's effects; give --generator")
+    if outside and limit:
+        raise ValueError("--limit: the bags hide one effect of the catalogue; --outside hides none of them")
+    sizes = parse_limit(limit) if limit else None
     name, source = load_source(generator)
-    separable = separable_source(generator)
+    separable = None if sizes else separable_source(generator)
     target = default_target(noise_scale) if target is None else target
     rows = []
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="rheo-bench-diagnosis-") as tmp:
         for i in range(replicates):
-            row = run_bag(source, i, np.random.default_rng((seed, i)), Path(tmp), noise_scale, quick, outside)
+            at = None if sizes is None else \
+                (sizes[0], log_uniform(np.random.default_rng((seed, i, 1)), sizes[1], sizes[2]))
+            row = run_bag(source, i, np.random.default_rng((seed, i)), Path(tmp), noise_scale, quick, outside, at)
             if separable is not None:
                 row = _with_separable(row, separable, noise_scale, quick, seed)
             rows.append(row)
@@ -704,6 +767,7 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     result = {
         "source": name, "generator": generator, "replicates": replicates, "seed": seed, "quick": quick,
         "outside_catalogue": outside, **({"draws": SIMULATOR_DRAWS} if generator is None else {}),
+        **({"limit": limit} if limit else {}),
         "noise_scale": noise_scale, **score(rows, target), **_times(rows, time.perf_counter() - t_start),
         "bags": rows,
     }
@@ -713,7 +777,23 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     return result
 
 
-MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue")   # what runs pooled must share
+MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue", "limit")   # what runs pooled must share
+
+
+def parse_limit(text: str) -> tuple[str, float, float]:
+    """``FAMILY:LO:HI`` (``--limit``) as (family, lo, hi).
+
+    Raises:
+        ValueError: names what is wrong with it."""
+    parts = text.split(":")
+    try:
+        family, lo, hi = parts[0], float(parts[1]), float(parts[2])
+    except (IndexError, ValueError):
+        raise ValueError(f"--limit {text!r}: give FAMILY:LO:HI, e.g. strain_stiffening:1.5:6") from None
+    if len(parts) != 3 or family not in FAMILIES or not 0.0 < lo <= hi < np.inf:
+        raise ValueError(f"--limit {text!r}: FAMILY one of {', '.join(FAMILIES)}, 0 < LO <= HI (readable sizes "
+                         "x the total-force noise)")
+    return family, lo, hi
 
 
 def merged(paths: list[Path], target: float | None = None,
