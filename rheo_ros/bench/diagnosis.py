@@ -378,7 +378,8 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
     """``simulator_bag``'s bag for ``limit``: one effect of ``family`` (its form and values
     drawn as ``draw_bag`` draws them, the power law left out) with its ``LIMIT_AMPLITUDES``
     scaled by the secant on log size until its readable size is within ``LIMIT_TOLERANCE``
-    of ``size``."""
+    of ``size``: the forward model at the bag's sample times at each step (as
+    ``simulator_separable_sizes``), the simulator run once, on the last."""
     if family not in FAMILIES:
         raise ValueError(f"--limit: {family!r} is not one of the simulator's families ({', '.join(FAMILIES)})")
     params = draw_params(rng, noise_scale, quick)
@@ -393,15 +394,15 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
         flat = params | {f"effects.{family}.form": form} | {f"effects.{family}.{k}": v for k, v in scaled.items()} \
             | {"simulator.effects": [family]}
         setup = Setup(check_params(flat, f"bag {index}"))
-        run = simulate_run(setup, seed)
-        reached = effect_size(setup, run.tactile_t, run.marker_t)["size_live"]
+        reached = effect_size(setup, sample_times(setup.profile.t_end, setup.params["rates.tactile"]),
+                              sample_times(setup.profile.t_end, setup.params["rates.markers"]))["size_live"]
         if abs(reached / size - 1.0) <= LIMIT_TOLERANCE:
             break
         step = size / reached if reached > 0.0 else 10.0
         if not LIMIT_SCALES[0] <= scale * step <= LIMIT_SCALES[1]:
             break   # a saturated array reads no more of a larger effect: stop at the last try
         scale *= step
-    return [{"effect": family, "form": form, "params": scaled}], flat, seed, setup, run
+    return [{"effect": family, "form": form, "params": scaled}], flat, seed, setup, simulate_run(setup, seed)
 
 
 # --- any source: loading, checking, running one bag ---------------------------------
