@@ -272,14 +272,14 @@ def test_the_generator_makes_out_of_catalogue_bags_and_the_simulator_refuses_to(
 def test_a_limit_run_hides_one_effect_of_the_family_at_the_size_drawn(source):
     """``--limit relaxation_branch:1.5:3``: each bag hides one arm (or two) scaled until its
     readable size is within ``LIMIT_TOLERANCE`` (3 %) of the target drawn for it, in both
-    sources; the run says so and merges only with limit runs of the same family and range."""
+    sources; the run says so, and pooled with random draws its bags set thresholds only."""
     result = diagnosis.run(replicates=1, seed=8, quick=True, generator=source, limit="relaxation_branch:1.5:3")
     [row] = result["bags"]
     assert [h["effect"] for h in row["hidden"]] == ["relaxation_branch"], row["message"]
     assert 1.5 <= row["limit_size"] <= 3.0
     assert row["hidden"][0]["size_live"] == pytest.approx(row["limit_size"], rel=diagnosis.LIMIT_TOLERANCE)
     assert row["size_live"] == pytest.approx(row["hidden"][0]["size_live"], rel=1e-9)
-    assert result["limit"] == "relaxation_branch:1.5:3" and "limit" in diagnosis.MERGED_AS_ONE
+    assert result["limit"] == "relaxation_branch:1.5:3" and "limit" not in diagnosis.MERGED_AS_ONE
     assert row["outcome"] in diagnosis.OUTCOMES and "size_separable" not in row["hidden"][0]
     json.dumps(result)
 
@@ -292,6 +292,30 @@ def test_a_limit_is_a_family_and_a_range_of_sizes():
             diagnosis.parse_limit(bad)
     with pytest.raises(ValueError, match="--limit: the bags hide one effect of the catalogue"):
         diagnosis.run(replicates=1, generator=str(GENERATOR), outside=True, limit="adhesion:1:6")
+
+
+def test_a_limit_run_pooled_with_random_draws_sets_the_thresholds_and_nothing_else(tmp_path):
+    """Random draws leave the adhesion's threshold between a miss at 1.0 and a hit at 6.0
+    (read as 6.0); a limit run's bags between them (named from 2.0) bring it to 2.0, and
+    the pair whose adhesion reads 3.0 is then above. The accuracies, clean bags and forms
+    stay the random draws': the limit run's bags are not among the bags above."""
+    random = [_row([]), _row([("adhesion", "held", 1.0)]), _row([("adhesion", "held", 6.0)], ["adhesion"]),
+              _row([("adhesion", "fading", 3.0), ("sensor_drift", "linear", 9.0)], ["sensor_drift"]),
+              _row([("sensor_drift", "linear", 2.0)], ["sensor_drift"])]
+    limit = [{**_row([("adhesion", "held", s)], ["adhesion"] if s >= 2.0 else []), "limit_size": s}
+             for s in (1.5, 2.0, 2.5, 3.5)]
+    alone = diagnosis.merged([_run_file(tmp_path / "a.json", 5, random)], 0.95)
+    assert alone["thresholds"]["adhesion"]["threshold"] == 6.0 and alone["limit_bags"] == 0
+    assert (alone["above"]["bags"], alone["above"]["exact"]) == (2, 2)
+    path = _run_file(tmp_path / "limit.json", 71, limit)
+    path.write_text(json.dumps({**json.loads(path.read_text()), "limit": "adhesion:1.5:3.5"}))
+    pooled = diagnosis.merged([tmp_path / "a.json", path], 0.95)
+    assert pooled["thresholds"]["adhesion"]["threshold"] == 2.0 and pooled["limit_bags"] == 4
+    assert pooled["thresholds"]["adhesion"]["bags_above"] == 4   # 2.0, 2.5, 3.5 of the limit run and 6.0
+    assert (pooled["above"]["bags"], pooled["above"]["exact"]) == (3, 2)   # the pair joins, missed
+    assert [pooled["by_hidden"][n]["bags"] for n in (0, 1, 2)] == [1, 3, 1] and pooled["clean_bags"] == 1
+    assert pooled["limits"] == ["adhesion:1.5:3.5"] and pooled["replicates"] == 9
+    assert "with 4 single-effect bags of limit runs: adhesion:1.5:3.5" in diagnosis.format_table(pooled)
 
 
 def _run_file(path: Path, seed, rows, noise_scale=1.0) -> Path:
@@ -372,6 +396,11 @@ def test_merged_runs_are_scored_by_the_separable_size_the_generator_gives_afterw
     assert result["thresholds_separable"]["sensor_drift"]["threshold"] == 0.9
     assert (result["above_separable"]["bags"], result["above_separable"]["exact"]) == (2, 2)
     assert (result["below_separable"]["bags"], result["below_separable"]["exact"]) == (1, 0)
+    # By both sizes the pair is below (its drift is separable by 0.3 only); the adhesion and
+    # the drift alone are above both.
+    assert (result["above_detectable"]["bags"], result["above_detectable"]["exact"]) == (2, 2)
+    assert (result["below_detectable"]["bags"], result["below_detectable"]["exact"]) == (1, 0)
+    assert "above both its family's thresholds" in diagnosis.format_table(result)
     assert "by the separable size" in diagnosis.format_table(result)
     assert "separable" not in diagnosis.format_table(diagnosis.merged([path], 0.95))
 

@@ -85,9 +85,11 @@ The **detection threshold** of a family (and of each form) is the smallest reada
 (``size_live``) such that at least ``target`` of the single-effect bags of that family
 (form) with an effect that large or larger are ``exact`` (a bag hiding two effects
 depends on both, so it does not set a family's threshold). ``target`` is 95 % at the
-default noise and 90 % at twice it (issue 20). A bag is **above** the thresholds when
-each of its hidden effects is above its family's; exact-set accuracy is reported above
-and below. **Clean bags**: false claims (any effect named) and undecided; and how well
+default noise and 90 % at twice it (issue 20); a limit run's bags pooled with the random
+draws (``--merge``) join the single-effect bags here and nowhere else. A bag is **above**
+the thresholds when each of its hidden effects is above its family's; exact-set accuracy
+is reported above and below, by each size, and by both (``detectable_scores``: every
+effect read by the sensor and not made by the rest of the truth). **Clean bags**: false claims (any effect named) and undecided; and how well
 the final model fits: the RMS of its total-force residual over the readings where every
 segment is live, pooled over the phases, over the total force's noise as the data show
 it (``force_rms_to_noise``, from the analysis's comparison, signal ``total``). Readings
@@ -648,11 +650,28 @@ def separable_scores(rows: list[dict[str, Any]], target: float) -> dict[str, Any
     return {"thresholds_separable": per, "above_separable": _accuracy(above), "below_separable": _accuracy(below)}
 
 
-def _split_by_thresholds(rows: list[dict[str, Any]], target: float, size: str
+def detectable_scores(rows: list[dict[str, Any]], readable: dict[str, dict[str, Any]],
+                      separable: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """The accuracy over the bags each of whose hidden effects is above its family's
+    threshold by both sizes: the sensor reads it (``size_live``) and the rest of the truth
+    cannot make it (``size_separable``). Either alone lets a pair count as above that
+    the data cannot tell: an effect the sensor reads well can be one the others take up
+    whole (a settling drift's curve in the pull beside a stiffening), and a separable one
+    can sit under the dead band. Empty where the rows lack separable sizes."""
+    if not separable:
+        return {}
+    families = {k: v for k, v in separable.items() if ":" not in k}
+    effect_rows = [r for r in rows if r["hidden"]]
+    both = [r for r in effect_rows if above_thresholds(r, readable) and above_thresholds(r, families, "size_separable")]
+    return {"above_detectable": _accuracy(both), "below_detectable": _accuracy([r for r in effect_rows if r not in both])}
+
+
+def _split_by_thresholds(rows: list[dict[str, Any]], target: float, size: str,
+                         threshold_rows: list[dict[str, Any]] | None = None
                          ) -> tuple[dict[str, dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]]]:
-    """The thresholds by ``size`` (:func:`thresholds`) and the rows with hidden effects
-    above every family's and the rest."""
-    per = thresholds(rows, target, size)
+    """The thresholds by ``size`` (:func:`thresholds`, over ``threshold_rows``; None:
+    ``rows``) and the rows with hidden effects above every family's and the rest."""
+    per = thresholds(rows if threshold_rows is None else threshold_rows, target, size)
     families = {k: v for k, v in per.items() if ":" not in k}
     effect_rows = [r for r in rows if r["hidden"]]
     above = [r for r in effect_rows if above_thresholds(r, families, size)]
@@ -681,15 +700,21 @@ def form_scores(rows: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, int
 def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
     """Every figure of the bench from its rows (module docstring); a bag whose source
     failed (``hidden`` None) counts in ``failed`` alone; a bag the analysis declined counts in
-    ``refused``, and among its kind's bags as not exact (a clean one is no false claim)."""
+    ``refused``, and among its kind's bags as not exact (a clean one is no false claim).
+    Bags of a limit run (``limit_size``) pooled with random draws join the single-effect
+    bags that set the thresholds and nothing else: the accuracies, the clean bags and the
+    forms are the random draws' (a limit run alone: its own)."""
     failed = sum(r["outcome"] == "failed" for r in rows)
     refused = sum(r["outcome"] == "refused" for r in rows)
     outside = [r for r in rows if r["outside"]]
     rows = [r for r in rows if r["hidden"] is not None and not r["outside"]]
+    singles = rows
+    rows = [r for r in rows if "limit_size" not in r] or rows
     effect_rows = [r for r in rows if r["hidden"]]
     clean = [r for r in rows if not r["hidden"] and r["outcome"] not in NO_ANSWER]
-    per, above, below = _split_by_thresholds(rows, target, "size_live")
-    whole = thresholds(rows, target, "size", forms=False)
+    per, above, below = _split_by_thresholds(rows, target, "size_live", singles)
+    whole = thresholds(singles, target, "size", forms=False)
+    separable = separable_scores(rows, target)
     weakest = [(min(h["size_live"] for h in r["hidden"]), r["outcome"] == "exact") for r in effect_rows]
     forms = form_scores(rows)
     fitted = [r for r in clean if r["force_rms_to_noise"] is not None and np.isfinite(r["force_rms_to_noise"])]
@@ -703,7 +728,10 @@ def score(rows: list[dict[str, Any]], target: float) -> dict[str, Any]:
         "thresholds_whole": whole,
         "threshold_weakest": detection_threshold(weakest, target),
         "above": _accuracy(above), "below": _accuracy(below),
-        **separable_scores(rows, target),
+        **separable,
+        **detectable_scores(rows, {k: v for k, v in per.items() if ":" not in k},
+                            separable.get("thresholds_separable", {})),
+        "limit_bags": len(singles) - len(rows),
         "forms": forms,
         "forms_right": sum(c.get(f, 0) for fam in forms.values() for f, c in fam.items()),
         "forms_named": sum(sum(c.values()) for fam in forms.values() for c in fam.values()),
@@ -781,7 +809,9 @@ def run(replicates: int = 100, seed: int = 0, quick: bool = False, noise_scale: 
     return result
 
 
-MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue", "limit")   # what runs pooled must share
+# What runs pooled must share. A limit run (``--limit``) pools with random draws of its
+# source and noise: its bags join the single-effect bags that set the thresholds (``score``).
+MERGED_AS_ONE = ("source", "noise_scale", "quick", "outside_catalogue")
 
 
 def parse_limit(text: str) -> tuple[str, float, float]:
@@ -805,7 +835,8 @@ def merged(paths: list[Path], target: float | None = None,
     """The runs' bags (their ``--json`` files) scored as one bench: a long bench made in
     parts (sessions, machines), each part its own seed. The runs must share the source,
     the noise, the records' length and the kind of bags (``MERGED_AS_ONE``), and no two
-    may hold the same bags (one seed twice). ``separable``: the source's
+    may hold the same bags (one seed twice); limit runs among random draws set thresholds
+    only (``score``). ``separable``: the source's
     :data:`SEPARABLE` function, which gives each bag's hidden effects the separable size
     a run made before it existed lacks (the bag drawn again, nothing analysed); the
     simulator's runs get the simulator's without asking.
@@ -841,7 +872,7 @@ def merged(paths: list[Path], target: float | None = None,
     if separable is not None:
         filled = []
         for k, row in enumerate(rows):   # tens of seconds a bag with effects: said as it goes
-            if row["seed"] not in redrawn:
+            if row["seed"] not in redrawn or "limit_size" in row:   # a limit bag is scaled: not its draw
                 filled.append(row)
                 continue
             filled.append(_with_separable(row, separable, first["noise_scale"], bool(first.get("quick")), row["seed"]))
@@ -856,6 +887,7 @@ def merged(paths: list[Path], target: float | None = None,
         **({"draws": first["draws"]} if "draws" in first and all(r.get("draws") == first["draws"] for r in runs)
            else {}),
         "replicates": len(rows), "seed": list(seeds), "runs": [str(p) for p in paths],
+        **({"limits": limits} if (limits := sorted({r["limit"] for r in runs if r.get("limit")})) else {}),
         **score(rows, target), **_times(rows, float(sum(r["total_seconds"] for r in runs))),
         "bags": rows,
     }
@@ -974,6 +1006,9 @@ def format_table(result: dict[str, Any]) -> str:
             f"({th['correct_above']}/{th['bags_above']} exact above)" for key, th in result["thresholds_whole"].items()))
     lines.append(f"bags with every effect above its family's threshold: {_fraction(result['above']['exact'], result['above']['bags'])} "
                  f"exact; below: {_fraction(result['below']['exact'], result['below']['bags'])}")
+    if result.get("limit_bags"):
+        lines.append(f"  (the thresholds with {result['limit_bags']} single-effect bags of limit runs: "
+                     f"{', '.join(result.get('limits', []))}; every other figure from the random draws)")
     if "thresholds_separable" in result:
         lines.append("by the separable size (what the rest of the truth cannot take up): thresholds " + "; ".join(
             f"{key} {'none' if th['threshold'] is None else format(th['threshold'], '.3g')} "
@@ -981,6 +1016,10 @@ def format_table(result: dict[str, Any]) -> str:
             for key, th in result["thresholds_separable"].items() if ":" not in key)
             + f"; bags with every effect above: {_fraction(result['above_separable']['exact'], result['above_separable']['bags'])} "
             f"exact; below: {_fraction(result['below_separable']['exact'], result['below_separable']['bags'])}")
+    if "above_detectable" in result:
+        lines.append("bags with every effect above both its family's thresholds (the sensor reads it and the rest of "
+                     f"the truth cannot make it): {_fraction(result['above_detectable']['exact'], result['above_detectable']['bags'])} "
+                     f"exact; below: {_fraction(result['below_detectable']['exact'], result['below_detectable']['bags'])}")
     lines.append(f"forms, where the family was named: {_fraction(result['forms_right'], result['forms_named'])} right "
                  "(" + "; ".join(f"{fam}:{hid} -> " + ", ".join(f"{f} {n}" for f, n in named.items())
                                  for fam, by in result["forms"].items() for hid, named in by.items()) + ")")
