@@ -470,3 +470,15 @@ def test_the_simulator_measures_what_the_rest_of_the_truth_cannot_take_up():
         size = diagnosis.effect_size(setup, force_t, marker_t, (effect,))["size_live"]
         assert size == pytest.approx(readable, abs=0.01)
         assert diagnosis.separable_size(setup, force_t, marker_t, 0) == pytest.approx(separable, abs=0.01)
+
+
+def test_a_limit_bag_scales_an_amplitude_no_further_than_its_domain():
+    """Simulator bag 3 of ``--limit adhesion:1:3`` at seed 78: a fading adhesion whose
+    held force reads nothing under the dead band until it crosses it. The secant asked
+    for a fraction of 1.52 on its way (the bag failed the parameters' check, "must be from 0
+    to 1", and was lost); now no step goes past 1, the largest fraction there is, and the
+    bag is made, at the fraction its last step reached."""
+    size = diagnosis.log_uniform(np.random.default_rng((78, 3, 1)), 1.0, 3.0)
+    hidden, _, _, setup, _ = diagnosis._limit_bag(np.random.default_rng((78, 3)), 3, 1.0, True, "adhesion", size)
+    assert 0.0 < hidden[0]["params"]["fraction"] <= 1.0
+    assert setup.params["effects.adhesion.fraction"] == hidden[0]["params"]["fraction"]

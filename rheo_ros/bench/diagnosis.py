@@ -150,6 +150,9 @@ FAMILIES = ("relaxation_branch", "adhesion", "strain_stiffening", "sensor_drift"
 LIMIT_TOLERANCE = 0.03
 LIMIT_STEPS = 8
 LIMIT_SCALES = (1e-3, 1e3)   # the amplitudes within these factors of the draw's
+# The most a scaled amplitude may reach, where its domain ends (``check_params``): a held
+# fraction of the force over 1 is no bag.
+LIMIT_CAPS = {"fraction": 1.0}
 # The simulator's fields scaled together to set an effect's size (its times kept).
 LIMIT_AMPLITUDES = {"relaxation_branch": ("stiffness", "viscosity", "stiffness_2", "viscosity_2"),
                     "adhesion": ("fraction",), "strain_stiffening": ("coefficient",),
@@ -379,8 +382,8 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
                ) -> tuple[list[dict[str, Any]], dict[str, Any], int, Setup, Any]:
     """``simulator_bag``'s bag for ``limit``: one effect of ``family`` (its form and values
     drawn as ``draw_bag`` draws them, the power law left out) with its ``LIMIT_AMPLITUDES``
-    scaled by the secant on log size until its readable size is within ``LIMIT_TOLERANCE``
-    of ``size``: the forward model at the bag's sample times at each step (as
+    scaled by the secant on log size (within ``LIMIT_SCALES`` and ``LIMIT_CAPS``) until its
+    readable size is within ``LIMIT_TOLERANCE`` of ``size``: the forward model at the bag's sample times at each step (as
     ``simulator_separable_sizes``), the simulator run once, on the last."""
     if family not in FAMILIES:
         raise ValueError(f"--limit: {family!r} is not one of the simulator's families ({', '.join(FAMILIES)})")
@@ -391,6 +394,8 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
     values = draw_effect(rng, family, form, params["material.E"], params["stage.keep_time"])
     seed = int(rng.integers(0, 2**31 - 1))
     scale = 1.0
+    top = min([LIMIT_CAPS[k] / abs(v) for k, v in values.items()
+               if k in LIMIT_AMPLITUDES[family] and k in LIMIT_CAPS and v], default=np.inf)
     for _ in range(LIMIT_STEPS):
         scaled = {k: v * scale if k in LIMIT_AMPLITUDES[family] else v for k, v in values.items()}
         flat = params | {f"effects.{family}.form": form} | {f"effects.{family}.{k}": v for k, v in scaled.items()} \
@@ -403,6 +408,10 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
         step = size / reached if reached > 0.0 else 10.0
         if not LIMIT_SCALES[0] <= scale * step <= LIMIT_SCALES[1]:
             break   # a saturated array reads no more of a larger effect: stop at the last try
+        if scale * step > top:
+            if scale >= top:
+                break   # at its domain's edge (a fraction of 1) it reads no more
+            step = top / scale
         scale *= step
     return [{"effect": family, "form": form, "params": scaled}], flat, seed, setup, simulate_run(setup, seed)
 
