@@ -482,3 +482,7 @@ def test_a_limit_bag_scales_an_amplitude_no_further_than_its_domain():
     hidden, _, _, setup, _ = diagnosis._limit_bag(np.random.default_rng((78, 3)), 3, 1.0, True, "adhesion", size)
     assert 0.0 < hidden[0]["params"]["fraction"] <= 1.0
     assert setup.params["effects.adhesion.fraction"] == hidden[0]["params"]["fraction"]
+    # Bag 10 stepped to the cap itself: the fraction is 1, not 1 + 2e-16 (then also refused).
+    size = diagnosis.log_uniform(np.random.default_rng((78, 10, 1)), 1.0, 3.0)
+    hidden, _, _, _, _ = diagnosis._limit_bag(np.random.default_rng((78, 10)), 10, 1.0, True, "adhesion", size)
+    assert 0.0 < hidden[0]["params"]["fraction"] <= 1.0

@@ -397,7 +397,8 @@ def _limit_bag(rng: np.random.Generator, index: int, noise_scale: float, quick: 
     top = min([LIMIT_CAPS[k] / abs(v) for k, v in values.items()
                if k in LIMIT_AMPLITUDES[family] and k in LIMIT_CAPS and v], default=np.inf)
     for _ in range(LIMIT_STEPS):
-        scaled = {k: v * scale if k in LIMIT_AMPLITUDES[family] else v for k, v in values.items()}
+        scaled = {k: float(np.clip(v * scale, -LIMIT_CAPS.get(k, np.inf), LIMIT_CAPS.get(k, np.inf)))
+                  if k in LIMIT_AMPLITUDES[family] else v for k, v in values.items()}   # the cap: not 1 + 2e-16
         flat = params | {f"effects.{family}.form": form} | {f"effects.{family}.{k}": v for k, v in scaled.items()} \
             | {"simulator.effects": [family]}
         setup = Setup(check_params(flat, f"bag {index}"))
