@@ -20,6 +20,7 @@ from rheo_ros.diagnosis.decision import (
     EXCESS_SIGMAS,
     Candidate,
     Diagnosis,
+    Rival,
     Verdict,
     _excess,
     _finite,
@@ -376,9 +377,33 @@ def test_diagnosis_json_lists_every_candidate_and_drops_non_finite_numbers():
              "eligible": False, "misfit_delta_bic": None, "clears": []},
         ],
         "evidence": "the keep misfits", "undecided": ["a", "b"], "degenerate": [], "leftover": [], "dropped": [],
-        "shared_times": [],
+        "shared_times": [], "rivals": [],
     }
     assert Diagnosis("m", True, None, (), "fine").undecided == ()
+    failed = replace(d, rivals=(Rival("lagging_reading", "the fit failed: ValueError: x", np.inf, False),))
+    assert failed.to_json()["rivals"] == [{"effect": "lagging_reading", "description": "the fit failed: ValueError: x",
+                                           "delta_bic": None, "sound": False, "beats": False, "params": {}, "std": {}}]
+
+
+def test_a_rival_in_no_catalogue_that_fits_better_unexplains_the_effects_added():
+    """``Rival.beats``: sound and a BIC lower than the model found by more than
+    ``BIC_DECISIVE``. One that beats the effects the loop added makes them the closest,
+    not missing, and the final word gives it as the reason; one that does not (unsound, or
+    only 10 lower), or one beside the base alone (nothing added to unexplain), changes
+    nothing."""
+    steps = [Diagnosis("three_element", False, "relaxation_branch", (candidate("relaxation_branch", -90.0),),
+                       "step one."),
+             Diagnosis("three_element+relaxation_branch", True, None, (), "step two.")]
+    lag = Rival("lagging_reading", "0.08 of each reading lagging", -BIC_DECISIVE - 0.1, True)
+    for rival in (replace(lag, sound=False), replace(lag, delta_bic=-BIC_DECISIVE)):
+        v = Verdict.of([steps[0], replace(steps[1], rivals=(rival,))])
+        assert (v.missing_effects, v.explained, v.rivals) == (("relaxation_branch",), True, ())
+    v = Verdict.of([steps[0], replace(steps[1], rivals=(lag,))])
+    assert (v.missing_effects, v.explained, v.closest, v.rivals) == ((), False, ("relaxation_branch",), (lag,))
+    assert ("an effect in no catalogue fits better than relaxation_branch (BIC lower by 10.1, within the noise): "
+            "0.08 of each reading lagging") in v.evidence
+    alone = Verdict.of([replace(steps[1], model="three_element", rivals=(lag,))])
+    assert (alone.explained, alone.rivals) == (True, ())
 
 
 def test_an_effect_taken_out_again_is_not_among_the_missing_effects():

@@ -25,7 +25,7 @@ from rheo_ros.experiment import StageProfile
 from rheo_ros.fe.dynamic import DynamicFE
 from rheo_ros.fe.mesh import Boundary, Mesh
 from rheo_ros.fe.quasistatic import Dynamics, QuasiStaticFE
-from rheo_ros.models.effects import Effect, Model, effect_class
+from rheo_ros.models.effects import Effect, Model, catalogue, effect_class
 from rheo_ros.models.elements import Element, three_element
 from rheo_ros.record import Record
 from rheo_ros.sensors import MarkerCamera, SensorReading, TactileArray, TactileReadout, marker_noise, read_sensor
@@ -68,12 +68,15 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
+def parse_params(text: str, source: str = "<text>", recorded: bool = False) -> dict[str, Any]:
     """Flat, checked parameters (defaults filled in) from a ROS 2 parameters file's text.
 
     Every ``<node>: ros__parameters:`` section is read, in file order (later ones
     win), so a file with ``/**`` and per-node sections gives the CLI what the nodes
-    together see.
+    together see. ``recorded``: the parameters a bag was recorded with, which say how it
+    was made: effects the simulator ran that this installation does not know (a plugin
+    the recording lab had) are left out with their values; an analysis does not read
+    them, and refusing the bag for them would refuse data for how it was made.
     """
     try:
         doc = yaml.load(text, Loader=_Loader) or {}
@@ -86,6 +89,12 @@ def parse_params(text: str, source: str = "<text>") -> dict[str, Any]:
     given: dict[str, Any] = {}
     for section in sections:
         given.update(flatten(section))
+    listed = given.get("simulator.effects")
+    if recorded and isinstance(listed, list):
+        known = set(catalogue())
+        unknown = {e for e in listed if isinstance(e, str) and e and e not in known}
+        given = {k: v for k, v in given.items() if not any(k.startswith(f"effects.{e}.") for e in unknown)}
+        given["simulator.effects"] = [e for e in listed if e not in unknown] or [""]
     return check_params(given, source)
 
 

@@ -170,8 +170,19 @@ class Analysis:
 
     def what_remains(self) -> dict[str, Any] | None:
         """What the final model leaves (``remaining.remaining``) where the catalogue does not
-        explain these data (``Verdict.explained`` false); None otherwise."""
-        return remaining(self.final, self.record) if Verdict.of(self.diagnoses).explained is False else None
+        explain these data (``Verdict.explained`` false), with the effects in no catalogue
+        fitted against it; None otherwise. Where one of those fits better than the effects
+        found (``Verdict.rivals``), those stood in for what is missing: what remains is the
+        base model's misfit, the footprint the missing effect must explain."""
+        if Verdict.of(self.diagnoses).explained is not False:
+            return None
+        return remaining(self.remaining_model, self.record, self.diagnoses[-1].rivals)
+
+    @property
+    def remaining_model(self) -> ModelFit:
+        """The model whose misfit ``what_remains`` describes: the final one, or the base
+        where an effect in no catalogue fits better than the effects found."""
+        return self.base if Verdict.of(self.diagnoses).rivals else self.final
 
     def _push_json(self) -> dict[str, Any]:
         verdict = Verdict.of(self.diagnoses)

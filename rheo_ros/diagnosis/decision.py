@@ -74,6 +74,15 @@ one time (``shared_times``: a lag read as an arm and a fading adhesion of its ti
 the catalogue does not explain these data: nothing is
 named, the effects added are the closest (``Verdict.closest``), and what the last model
 leaves is described (``diagnosis.remaining``).
+
+A model that passes all of that can still be the wrong one: a catalogue effect can fit
+data it did not make within the noise (a sensor's lag read as a Maxwell arm, a softening
+material as a settling drift under a dead band). Its own residuals cannot show it; a
+better alternative can. So the effects added are also held up against effects in no
+catalogue (``models.rivals``: a lagging reading, a strain-softening material), each
+fitted on the base alone (``Rival``): one that fits within the noise, pins its own
+parameters down and lowers the BIC below the model found by more than ``BIC_DECISIVE``
+means the catalogue does not explain these data, and it describes what is missing.
 """
 
 from __future__ import annotations
@@ -195,6 +204,42 @@ class Candidate:
 
 
 @dataclass(frozen=True)
+class Rival:
+    """An effect in no catalogue (``models.rivals``) fitted on the base model alone and
+    held up against the model the loop ended with.
+
+    Attributes:
+        effect: its id; description: its fitted law in words.
+        delta_bic: its BIC minus that of the model judged (negative: it fits better).
+        sound: it fits within the noise, leaves no phase misfitting, loses no base
+            parameter and the data pin its own parameters down (``discover._sound``).
+        fit: the base model with it.
+    """
+
+    effect: str
+    description: str
+    delta_bic: float
+    sound: bool
+    fit: ModelFit | None = field(default=None, repr=False)
+
+    @property
+    def beats(self) -> bool:
+        """It is an answer and fits decisively better (``BIC_DECISIVE``): the effects
+        found are not what the data hold."""
+        return self.sound and self.delta_bic < -BIC_DECISIVE
+
+    def to_json(self) -> dict:
+        """Its id, law in words, BIC against the model judged, and its own fitted
+        parameters with their std (null where the data leave one open)."""
+        est = self.fit.estimate if self.fit is not None else None
+        own = [k for k in est.params if k.startswith(self.effect + ".")] if est is not None else []
+        return {"effect": self.effect, "description": self.description, "delta_bic": _finite(self.delta_bic),
+                "sound": self.sound, "beats": self.beats,
+                "params": {k: float(est.params[k]) for k in own} if est is not None else {},
+                "std": {k: _finite(est.std.get(k, np.nan)) for k in own} if est is not None else {}}
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     """The verdict on one model.
 
@@ -213,6 +258,9 @@ class Diagnosis:
             they no longer earned their parameters beside it (``discover.drop_idle``).
         shared_times: the judged model's effects that share one time (``shared_times``;
             set by ``discover`` on its last diagnosis).
+        rivals: effects in no catalogue fitted on the base alone, against the judged
+            model (``Rival``; set by ``discover`` on its last diagnosis where effects
+            were added or the model misfits).
     """
 
     model: str
@@ -225,6 +273,7 @@ class Diagnosis:
     leftover: tuple[str, ...] = ()
     dropped: tuple[str, ...] = ()
     shared_times: tuple[str, ...] = ()
+    rivals: tuple[Rival, ...] = ()
 
     def to_json(self) -> dict:
         return {
@@ -235,6 +284,7 @@ class Diagnosis:
                            for c in self.candidates],
             "evidence": self.evidence, "undecided": list(self.undecided), "degenerate": list(self.degenerate),
             "leftover": list(self.leftover), "dropped": list(self.dropped), "shared_times": list(self.shared_times),
+            "rivals": [r.to_json() for r in self.rivals],
         }
 
 
@@ -259,6 +309,8 @@ class Verdict:
         degenerate: the last model's collapsed parameters (``collapsed``).
         leftover: where the last model, with effects added, still misfits (``leftover``).
         shared_times: the last model's effects that share one time (``shared_times``).
+        rivals: the effects in no catalogue that fit decisively better than the last
+            model with effects added (``Rival.beats``).
         reason: why the effects added do not explain the data, in words ("" when they do).
     """
 
@@ -272,6 +324,7 @@ class Verdict:
     degenerate: tuple[str, ...] = ()
     leftover: tuple[str, ...] = ()
     shared_times: tuple[str, ...] = ()
+    rivals: tuple[Rival, ...] = ()
     reason: str = ""
 
     @classmethod
@@ -284,7 +337,9 @@ class Verdict:
             found += [d.missing_effect] if d.missing_effect else []
             found = [e for e in found if e not in d.dropped]
         added = tuple(found)
-        explained = bool(last.adequate) and not last.degenerate and not last.leftover and not last.shared_times
+        rivals = tuple(r for r in last.rivals if r.beats) if added else ()
+        explained = (bool(last.adequate) and not last.degenerate and not last.leftover and not last.shared_times
+                     and not rivals)
         evidence = " ".join(d.evidence for d in diagnoses)
         why = ""
         if added and not explained:   # every reason that holds
@@ -298,12 +353,15 @@ class Verdict:
                 reasons.append(f"{'; '.join(last.shared_times)} agree within {SHARED_TIME:.0%}: one time spans the "
                                "phases these effects show in, as one mechanism the catalogue lacks would (a "
                                "sensor's own lag, for one), not two of separate causes")
+            for r in rivals:
+                reasons.append(f"an effect in no catalogue fits better than {' and '.join(added)} (BIC lower by "
+                               f"{-r.delta_bic:.3g}, within the noise): {r.description}")
             why = "; and ".join(reasons)
             evidence += f" Final verdict: {unexplained_text(why, added)} (see remaining)."
         return cls(adequate=bool(last.adequate), missing_effects=added if explained else (),
                    undecided=last.undecided, candidates=diagnoses[0].candidates, evidence=evidence,
                    explained=explained, closest=() if explained else added, degenerate=last.degenerate,
-                   leftover=last.leftover, shared_times=last.shared_times, reason=why)
+                   leftover=last.leftover, shared_times=last.shared_times, rivals=rivals, reason=why)
 
 
 def unexplained_text(reason: str, closest: Sequence[str]) -> str:

@@ -307,13 +307,15 @@ def fit_from(record: Record, forward: QuasiStaticFE, points: Sequence[tuple[Sequ
     return best
 
 
-def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect_id: str,
+def add_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect: str | type[Effect],
                noise: SensorNoise, form: str | None = None, sound: Callable[[ModelFit], bool] | None = None
                ) -> ModelFit:
-    """``current`` + the effect (its ``form``, default: the family's default), fitted from
-    its best start as given and after a linearised step (``start_points``; the second
-    skipped once a fit is ``sound``: ``fit_from``), the better kept."""
-    starts = effect_class(effect_id, form).starts(_context(record, forward, current, noise))
+    """``current`` + the effect (a registered id in its ``form``, default: the family's
+    default; or an effect class, registered or not: ``models.rivals``), fitted from its
+    best start as given and after a linearised step (``start_points``; the second skipped
+    once a fit is ``sound``: ``fit_from``), the better kept."""
+    cls = effect if isinstance(effect, type) else effect_class(effect, form)
+    starts = cls.starts(_context(record, forward, current, noise))
     points = [(effects, {**current.estimate.params, **base})
               for effects, base in start_points(record, forward, current, starts, noise)]
     fit = fit_from(record, forward, points, noise, sound)

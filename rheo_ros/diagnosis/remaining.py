@@ -13,13 +13,13 @@ step does not beat zero by ``BIC_DECISIVE``. Sizes are in units of that noise.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize
 
-from rheo_ros.diagnosis.decision import BIC_DECISIVE, misfit_cells
+from rheo_ros.diagnosis.decision import BIC_DECISIVE, Rival, misfit_cells
 from rheo_ros.diagnosis.fits import ModelFit
 from rheo_ros.experiment import PHASES
 from rheo_ros.identification.fit import live_top, steady_readings
@@ -121,11 +121,12 @@ def shape_curve(shape: dict[str, Any], t: np.ndarray) -> np.ndarray:
     return coef[0] + coef[1] * np.exp(-t / shape["tau"])
 
 
-def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
+def remaining(fit: ModelFit, record: Record, rivals: Sequence[Rival] = ()) -> dict[str, Any]:
     """What ``fit`` leaves: the misfitting signals and phases (``decision.misfit_cells``:
     RMS and mean residual in noise units), whether in the force alone or the markers too
-    (a sensor-side effect, or a material one), and the total force's residual shape in
-    each phase of the push (``phase_shape``)."""
+    (a sensor-side effect, or a material one), the total force's residual shape in each
+    phase of the push (``phase_shape``), and the effects in no catalogue fitted against
+    it (``rivals``: ``decision.Rival``), best first."""
     cells = misfit_cells(fit)
     markers = [c for c in cells if c["signal"] == "markers"]
     force = [c for c in cells if c["signal"] != "markers"]   # the segments and their total
@@ -156,15 +157,19 @@ def remaining(fit: ModelFit, record: Record) -> dict[str, Any]:
             "phases": sorted({c["phase"] for c in cells}, key=lambda ph: (order.index(ph) if ph in order else 9, ph)),
             "segments": sorted({c["signal"] for c in force if c["signal"].startswith("P")}),
             "force_only": bool(force) and not markers,
-            "markers_only": bool(markers) and not force, "force_noise": float(noise), "shapes": shapes}
+            "markers_only": bool(markers) and not force, "force_noise": float(noise), "shapes": shapes,
+            "rivals": [r.to_json() for r in sorted(rivals, key=lambda r: r.delta_bic)]}
 
 
 def describe(rest: dict[str, Any]) -> str:
     """A ``remaining`` result in one sentence (``rheo analyze``'s text, the report)."""
     where = ("the force alone" if rest["force_only"] else "the markers alone" if rest["markers_only"]
              else "the force and the markers")
+    better = [r for r in rest.get("rivals", []) if r["beats"]]
     return (f"What remains (in {where}; total force, noise {rest['force_noise']:.3g} N): " + "; ".join(
         f"{phase}: {v['shape']}" + (f" {v['delay']:.3g} s in, rising over {v['rise']:.3g} s and falling over "
                                     f"{v['tau']:.3g} s" if v["rise"] else f" of {v['tau']:.3g} s" if v["tau"] else "")
         + f", {v['size']:+.3g} x noise"
-        for phase, v in rest["shapes"].items()))
+        for phase, v in rest["shapes"].items())
+        + "".join(f". It looks like an effect in no catalogue: {r['description']} fits it within the noise"
+                  for r in better[:1]))

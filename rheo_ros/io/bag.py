@@ -254,11 +254,13 @@ def repair_bag(path: str | Path, params: dict[str, Any] | None = None) -> Repair
     custom: dict[str, str] = {}
     params_file = path / RECORDING_PARAMS
     if whole:
-        custom = _custom_data(path)
+        custom = _custom_data(path)   # the recorded parameters' own text among them
         if params is None:
-            params = read_params(path)
+            read_params(path)   # checked, and kept as written (with effects this installation may lack)
     elif params is None and params_file.is_file():
-        params = parse_params(params_file.read_text(), str(params_file))
+        text = params_file.read_text()
+        parse_params(text, str(params_file), recorded=True)
+        custom[PARAMS_KEY] = text
     if params is not None:
         custom[PARAMS_KEY] = params_yaml(params)
     suffix = ".damaged" if whole else ".killed"
@@ -411,7 +413,7 @@ def read_params(path: str | Path) -> dict[str, Any] | None:
     if text and not isinstance(text, str):
         raise BagError(f"{meta}: custom_data {PARAMS_KEY}: {str(text)[:40]!r} ({type(text).__name__}) is not a "
                        "parameters file's text")
-    return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}") if text else None
+    return parse_params(text, f"{meta}: custom_data {PARAMS_KEY}", recorded=True) if text else None
 
 
 @contextmanager

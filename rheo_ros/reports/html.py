@@ -232,7 +232,10 @@ def _remaining_section(result: Analysis) -> str:
         + ('<td class="tau" data-value="">-</td>' if v["tau"] is None else _value_cell(v["tau"], ".3g", "tau"))
         + "</tr>" for phase, v in rest["shapes"].items())
     misfits = ", ".join(f"{c['signal']} in the {c['phase']} ({c['ratio']:.3g} x the noise)" for c in rest["misfits"])
-    caption = (f"The total bottom force measured minus {result.final.name}, the final model: what a missing "
+    caption = (f"The total bottom force measured minus {result.remaining_model.name}"
+               + (", the final model" if result.remaining_model is result.final else
+                  ", the base model (an effect in no catalogue fits better than the effects found)")
+               + ": what a missing "
                "effect must add. Over each phase, the shape fitted to it (a step, a ramp or a decay with its "
                "own time, the lowest BIC); the band is two noise std wide.")
     return ('<section><h2>What remains</h2>'
@@ -247,7 +250,7 @@ def _remaining_section(result: Analysis) -> str:
 def _remaining_svg(result: Analysis, rest: dict) -> str:
     record = result.record
     t = record.force_t
-    residual = record.force.sum(axis=1) - result.final.prediction_total
+    residual = record.force.sum(axis=1) - result.remaining_model.prediction_total
     steady = steady_readings(record)
     noise = rest["force_noise"]
     with _new_figure(9, 3.4) as fig:
