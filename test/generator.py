@@ -176,6 +176,14 @@ class Effects:
         structure breaks down with the largest strain it has seen, its stress
         sigma / (1 + d eps_max); the kinematics are the undamaged block's (a stress-free
         recovery is one whatever the factor), so the markers do not see it.
+    Laws of the same kinds that are not the package's rivals' (``models.rivals``), to
+    measure what the rivals do on effects they were not written for:
+    sensor_lag_second_order: (tau s, share): ``share`` of each reading through two equal
+        first-order lags in series (a critically damped second-order sensor).
+    damage_exponential: d: the stress times exp(-d eps_max).
+    sensor_hysteresis: w Pa: each cell reads through a play of half-width w (it follows
+        the pressure only once that has moved w past it: on loading w under, on unloading
+        w over; after the release w stays read).
     """
     stiffening: float | None = None
     maxwell: tuple[tuple[float, float], ...] = ()
@@ -185,6 +193,9 @@ class Effects:
     sensor_lag: tuple[float, float] | None = None
     camera_drift: tuple[float, float] | None = None
     damage: float | None = None
+    sensor_lag_second_order: tuple[float, float] | None = None
+    damage_exponential: float | None = None
+    sensor_hysteresis: float | None = None
 
 
 EFFECTS: dict[str, Effects] = {
@@ -451,6 +462,8 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
     sigma = mech.sigma
     if effects.damage is not None:   # eps_max over the samples: the strain peaks on a stage knot
         sigma = sigma / (1.0 + effects.damage * np.maximum.accumulate(mech.eps))
+    if effects.damage_exponential is not None:
+        sigma = sigma * np.exp(-effects.damage_exponential * np.maximum.accumulate(mech.eps))
     p = np.broadcast_to(sigma[:, None, None], shape).copy()
     if effects.adhesion is not None:
         p0, tau = effects.adhesion
@@ -477,6 +490,18 @@ def synthesize(material: Material = Material(), effects: Effects = Effects(), se
         cells = p.reshape(len(tac_t), -1)
         lagged = np.column_stack([lsim(lag, cells[:, j], tac_t)[1] for j in range(cells.shape[1])])
         p = (1.0 - share) * p + share * lagged.reshape(p.shape)
+    if effects.sensor_lag_second_order is not None:
+        tau, share = effects.sensor_lag_second_order
+        lag2 = lti([1.0], [tau * tau, 2.0 * tau, 1.0])
+        cells = p.reshape(len(tac_t), -1)
+        lagged = np.column_stack([lsim(lag2, cells[:, j], tac_t)[1] for j in range(cells.shape[1])])
+        p = (1.0 - share) * p + share * lagged.reshape(p.shape)
+    if effects.sensor_hysteresis is not None:
+        w = effects.sensor_hysteresis
+        read = np.zeros(shape[1:])
+        for i in range(len(tac_t)):   # the play operator: sequential by nature
+            read = np.clip(read, p[i] - w, p[i] + w)
+            p[i] = read
     p = cell_readings(p, sensor, tac_rng)
     if sensor.clipped_cell is not None:
         r, c, top = sensor.clipped_cell
@@ -636,13 +661,17 @@ def bench_effect(rng: np.random.Generator, family: str, material: Material, prof
 
 # Effects in no catalogue (rheo bench diagnosis --outside): what the package must not name.
 BENCH_OUTSIDE = ("sensor_lag", "camera_drift", "damage")
+# Their kinds by laws the package's rivals were not written for, and a sensor's play.
+BENCH_OUTSIDE_OTHER = ("sensor_lag_second_order", "damage_exponential", "sensor_hysteresis")
 
 
 def bench_outside(rng: np.random.Generator, name: str) -> tuple[dict[str, Any], dict[str, float], str]:
     """One effect in no catalogue by this generator's law: its ``Effects`` fields, its
     values and the signal it shows in. sensor_lag: a share 2..50 % of each reading through
     a lag of 0.3..10 s; camera_drift: the camera seen moving at 0.1..5 um/s each way;
-    damage: a softening d of 0.3..5 (the stress over 1 + d eps_max)."""
+    damage: a softening d of 0.3..5 (the stress over 1 + d eps_max); the other laws
+    (``BENCH_OUTSIDE_OTHER``): sensor_lag_second_order as sensor_lag, damage_exponential as
+    damage (the stress times exp(-d eps_max)), sensor_hysteresis a play of 30..3000 Pa."""
     if name == "sensor_lag":
         tau, share = _log_uniform(rng, 0.3, 10.0), _log_uniform(rng, 0.02, 0.5)
         return {"sensor_lag": (tau, share)}, {"tau": tau, "share": share}, "force"
@@ -652,6 +681,15 @@ def bench_outside(rng: np.random.Generator, name: str) -> tuple[dict[str, Any], 
     if name == "damage":
         d = _log_uniform(rng, 0.3, 5.0)
         return {"damage": d}, {"softening": d}, "force"
+    if name == "sensor_lag_second_order":
+        tau, share = _log_uniform(rng, 0.3, 10.0), _log_uniform(rng, 0.02, 0.5)
+        return {"sensor_lag_second_order": (tau, share)}, {"tau": tau, "share": share}, "force"
+    if name == "damage_exponential":
+        d = _log_uniform(rng, 0.3, 5.0)
+        return {"damage_exponential": d}, {"softening": d}, "force"
+    if name == "sensor_hysteresis":
+        w = _log_uniform(rng, 30.0, 3000.0)
+        return {"sensor_hysteresis": w}, {"w": w}, "force"
     raise KeyError(name)
 
 
@@ -789,8 +827,8 @@ def _shaped(like: Any, numbers: Any) -> Any:
 
 
 def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: float = 1.0,
-              quick: bool = False, outside: bool = False, limit: tuple[str, float] | None = None
-              ) -> dict[str, Any]:
+              quick: bool = False, outside: bool = False, limit: tuple[str, float] | None = None,
+              kinds: tuple[str, ...] = BENCH_OUTSIDE) -> dict[str, Any]:
     """The diagnosis bench's protocol (``rheo bench diagnosis --generator test/generator.py``):
     draw bag ``index`` from ``rng``, write it at ``out_dir`` (its .truth.json and
     .params.yaml beside it) and return its truth in the package's vocabulary.
@@ -799,7 +837,7 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
     0.2..0.45; depth 5..12 mm, keep 15..40 s, release 20..40 s (quick: 15..18, 20..24 s);
     a sensor of ``SENSORS`` but the noise-free one, its noises times ``noise_scale``;
     ``index mod 3`` hidden effects of distinct families (``bench_effect``); with
-    ``outside``, none of them but one effect in no catalogue (``bench_outside``); with
+    ``outside``, none of them but one effect in no catalogue of ``kinds`` (``bench_outside``); with
     ``limit`` (family, readable size), one effect of that family scaled to that size
     (``_at_size``)."""
     material, profile, base, sensor, layout, seed = _bench_draw(rng, noise_scale, quick)
@@ -814,7 +852,7 @@ def bench_bag(rng: np.random.Generator, index: int, out_dir: Path, noise_scale: 
                 "info": {"generator": GENERATOR_ID, "seed": seed, "sensor": base.name, "noise": sensor.noise,
                          "material": asdict(material)}}
     if outside:
-        name = str(rng.choice(BENCH_OUTSIDE))
+        name = str(rng.choice(kinds))
         fields, values, signal = bench_outside(rng, name)
         effects = Effects(**fields)
         sizes = bench_sizes(material, effects, sensor, seed, profile, layout)

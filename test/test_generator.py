@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from scipy.signal import lsim, lti
 
 MAT = g.Material()
 PROFILE = g.Profile()
@@ -136,6 +137,26 @@ def test_sensor_models_and_visible_effects() -> None:
     assert nd.min() == 0.0 and np.any((nd > 0) & (nd < 100))
     cam = [g.synthesize(sensor=s).markers[:, :, 0] - exact.markers[:, :, 0] for s in ("default_like", "noisy_camera")]
     assert 1.5e-5 < np.std(cam[0]) < 2.5e-5 and 0.8e-4 < np.std(cam[1]) < 1.2e-4
+
+
+def test_the_other_laws_in_no_catalogue() -> None:
+    """BENCH_OUTSIDE_OTHER's laws, noise-free: the exponential damage is the stress times
+    exp(-d eps_max) (its largest strain at the end of the pull); the play reads w under
+    the pressure while it rises past w and w over it once it has fallen (after the
+    release: w); the second-order lag is scipy's lsim of the critically damped system."""
+    exact = g.synthesize(sensor="noise_free")
+    t, p = exact.tactile_t, exact.images[:, 0, 0].astype(float)
+    t1, t2 = PROFILE.knots[1], PROFILE.knots[2]
+    eps = g.simulate(MAT, g.Effects(), PROFILE, t, H).eps
+    soft = g.synthesize(effects=g.Effects(damage_exponential=2.0), sensor="noise_free").images[:, 0, 0]
+    np.testing.assert_allclose(soft, (p * np.exp(-2.0 * np.maximum.accumulate(eps))).astype(np.float32), rtol=1e-6)
+    play = g.synthesize(effects=g.Effects(sensor_hysteresis=200.0), sensor="noise_free").images[:, 0, 0]
+    rising = (t < t1) & (p > 200.0)
+    np.testing.assert_allclose(play[rising], p[rising] - 200.0, rtol=1e-5)
+    assert np.all(np.abs(play[t > t2 + 1.0] - 200.0) < 1e-3)
+    lagged = g.synthesize(effects=g.Effects(sensor_lag_second_order=(1.0, 0.4)), sensor="noise_free").images[:, 0, 0]
+    second = lsim(lti([1.0], [1.0, 2.0, 1.0]), p, t)[1]
+    np.testing.assert_allclose(lagged, (0.6 * p + 0.4 * second).astype(np.float32), rtol=1e-5, atol=1e-3)
 
 
 @pytest.fixture(scope="module")
