@@ -297,8 +297,7 @@ def try_rival(record: Record, forward: QuasiStaticFE, base: ModelFit, judged: Mo
     except Exception as exc:  # a rival that cannot be fitted is no rival; the verdict stands
         return Rival(rival.id, f"the fit failed: {type(exc).__name__}: {exc}", np.inf, False)
     effect = next(e for e in fit.model.effects if e.id == rival.id)
-    sound = not _flawed(fit, base, interval) and not undetermined(fit, rival.id)
-    return Rival(rival.id, effect.describe(), fit.bic - judged.bic, sound, fit)
+    return Rival(rival.id, effect.describe(), fit.bic - judged.bic, _sound(fit, rival.id, base, interval), fit)
 
 
 def rivals(record: Record, forward: QuasiStaticFE, models: Sequence[ModelFit], noise: SensorNoise,
