@@ -107,6 +107,31 @@ def test_a_catalogue_effect_that_fits_is_not_named_where_one_in_no_catalogue_fit
         assert found["params"][f"{rival}.{fitted}"] == pytest.approx(truth["outside"][0]["params"][generated], rel=0.1)
 
 
+def test_a_sensors_play_is_not_read_as_a_drift_and_a_stiffening(tmp_path):
+    """Generator bag 40:11 of the other laws (``BENCH_OUTSIDE_OTHER``; quick, an array with
+    no dead band): each cell reads through a play of half-width 44.5 Pa (6.1 x the total
+    force's noise). At stop 71 a settling drift and a stiffening were named, fitting within
+    the noise. The play rival (``models.rivals.SensorPlay``: a play on each segment, its
+    width in proportion to its cells) fits within the noise and lowers the BIC below them by
+    more than 10 (measured 181.6): nothing is named, and its width is the generator's per
+    cell summed over an average segment's cells within 10 % (measured 3.7 % over)."""
+    from generator import BENCH_OUTSIDE_OTHER, Layout, bench_bag
+
+    truth = bench_bag(np.random.default_rng((40, 11)), 11, tmp_path / "bag", 1.0, True, outside=True,
+                      kinds=BENCH_OUTSIDE_OTHER)
+    assert truth["outside"][0]["effect"] == "sensor_hysteresis"
+    d = analyze(tmp_path / "bag", params_file=truth["params_file"], workers=1).to_json()["diagnosis"]
+    assert (d["missing_effect"], d["missing_effects"], d["explained"]) == (None, [], False), d["evidence"]
+    found = {r["effect"]: r for r in d["remaining"]["rivals"]}["sensor_play"]
+    assert found["beats"] and found["delta_bic"] < -10, found
+    layout = Layout()
+    array = Setup(check_params({})).tactile
+    cells = layout.tactile_rows * np.bincount(array.segment, minlength=array.nodes).mean()
+    area = (layout.width / layout.tactile_cols) * (layout.thickness / layout.tactile_rows)
+    width = truth["outside"][0]["params"]["w"] * cells * area   # N per average segment
+    assert found["params"]["sensor_play.width"] == pytest.approx(width, rel=0.1), found
+
+
 def test_a_lag_that_only_readings_under_the_dead_band_show_is_no_held_adhesion(tmp_path):
     """Generator out-of-catalogue bag 32:9 (quick; a dead-banded array, 2 % of each reading
     through a 1.19 s lag): after a Maxwell arm of the lag's time, a held adhesion of 0.4 %

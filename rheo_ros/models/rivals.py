@@ -6,8 +6,8 @@ that softens with the largest strain it has seen reads as a settling drift under
 band (stop 68: 9 of 90 out-of-catalogue generator bags named so, each fitting within the
 noise). The named model's residuals cannot tell; only a better alternative can (stop
 70, docs/bench/outside-truth-stop70: the true effect beat the named one by 18-191 in BIC
-in each). These are such alternatives, of two kinds a lab meets and the catalogue lacks:
-a sensor with memory and a material with memory. They are never named missing: where one
+in each). These are such alternatives, of kinds a lab meets and the catalogue lacks: a
+sensor with memory (one that lags, one with play) and a material with memory. They are never named missing: where one
 fits the data decisively better than the effects found, the catalogue does not explain
 the data, and the rival describes what the missing effect looks like
 (``diagnosis.discover.rivals``).
@@ -20,7 +20,7 @@ instead.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
@@ -59,6 +59,28 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, time: float) -> np.ndarray:
         y[start + 1:stop] = np.exp(-rel) * (y[start] + grown)
         start = stop - 1
     return y
+
+
+def play(x: np.ndarray, width: float | np.ndarray, start: float = 0.0) -> np.ndarray:
+    """``x`` (T, ...) through a play (backlash) of half-width ``width`` (broadcast over the
+    columns), reading ``start`` before the first sample: y_i = clip(y_(i-1), x_i - width,
+    x_i + width). A reading follows the input only once it has moved ``width`` past it:
+    ``width`` under on loading, over on unloading; rate-independent. The recursion is a
+    chain of clamps, and clamps compose into a clamp (clip(clip(y, L, H), a, b) =
+    clip(y, clip(L, a, b), clip(H, a, b))), so each prefix of the chain is found by a
+    doubling scan: log2(T) vectorised passes, exact (clip only selects)."""
+    x = np.asarray(x, float)
+    lo, hi = x - width, x + width
+    shift = 1
+    while shift < x.shape[0]:
+        # The chain up to i-shift, then the one from there to i: its clamp clips both ends.
+        # (maximum then minimum: clip's own checks cost twice as much here.)
+        later_lo, later_hi = lo[shift:], hi[shift:]
+        new_lo = np.minimum(np.maximum(lo[:-shift], later_lo), later_hi)
+        new_hi = np.minimum(np.maximum(hi[:-shift], later_lo), later_hi)
+        later_lo[...], later_hi[...] = new_lo, new_hi
+        shift *= 2
+    return np.minimum(np.maximum(start, lo), hi)
 
 
 @dataclass(frozen=True)
@@ -120,5 +142,41 @@ class StrainSoftening(Effect):
         return 1.0 / (1.0 + self.softening * np.maximum.accumulate(np.maximum(strain, 0.0)))
 
 
+@dataclass(frozen=True)
+class SensorPlay(Effect):
+    """Each tactile segment reads through a play (backlash, rate-independent hysteresis)
+    of half-width ``width`` (N per average segment, each segment's in proportion to its
+    cells: ``shares``): a foam or a mechanism that must be pushed ``width`` past its
+    reading before it follows. On loading it reads ``width`` under, on unloading
+    ``width`` over, and after the release ``width`` stays read. In the force alone."""
+
+    id: ClassVar[str] = "sensor_play"
+    shows_in: ClassVar[tuple[str, ...]] = ("pull", "keep", "release")
+    resolving_experiment: ClassVar[str] = "a load stepped up and down on the array (the sensor alone)"
+    width: float = 0.01
+    shares: tuple[float, ...] | None = field(default=None, metadata={"parameter": False})
+
+    @property
+    def memory(self) -> float:
+        return math.inf
+
+    @classmethod
+    def starts(cls, context: FitContext) -> tuple[Effect, ...]:
+        # What stays read after the release is the width itself; or a hundredth of the peak.
+        shares = None if context.cells is None else tuple((context.cells / np.mean(context.cells)).tolist())
+        after = (context.force_t > context.profile.t_keep_end)[:, None] & context.live
+        level = float(np.mean(context.residual[after])) if after.sum() >= 10 else 0.0
+        widths = [w for w in (level, 0.01 * context.peak_force) if w > 1e-6 * context.peak_force]
+        return tuple(cls(w, shares) for w in widths)
+
+    def describe(self) -> str:
+        return (f"each tactile segment reading through a play (hysteresis) of half-width {self.width:.3g} N: "
+                "under on loading, over on unloading, held after the release")
+
+    def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
+        shares = np.ones(np.shape(force)[1]) if self.shares is None else np.asarray(self.shares)
+        return play(force, self.width * shares[None])
+
+
 # Every rival the diagnosis fits, in the order it reports them.
-RIVALS: tuple[type[Effect], ...] = (LaggingReading, StrainSoftening)
+RIVALS: tuple[type[Effect], ...] = (LaggingReading, StrainSoftening, SensorPlay)
