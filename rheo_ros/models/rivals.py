@@ -166,8 +166,8 @@ class SensorPlay(Effect):
         shares = None if context.cells is None else tuple((context.cells / np.mean(context.cells)).tolist())
         after = (context.force_t > context.profile.t_keep_end)[:, None] & context.live
         level = float(np.mean(context.residual[after])) if after.sum() >= 10 else 0.0
-        widths = [w for w in (level, 0.01 * context.peak_force) if w > 1e-6 * context.peak_force]
-        return tuple(cls(w, shares) for w in widths)
+        widths = [level] if level > 1e-6 * context.peak_force else []
+        return tuple(cls(w, shares) for w in (*widths, max(0.01 * context.peak_force, 1e-9)))
 
     def describe(self) -> str:
         return (f"each tactile segment reading through a play (hysteresis) of half-width {self.width:.3g} N: "
