@@ -91,6 +91,17 @@ class FitContext:
     live: np.ndarray
     cells: np.ndarray | None = None
 
+    @property
+    def cell_shares(self) -> tuple[float, ...] | None:
+        """Each segment's cells over the mean (what a uniform pressure gives each segment
+        of an average segment's force); None where not known."""
+        return None if self.cells is None else tuple((self.cells / np.mean(self.cells)).tolist())
+
+
+def segment_shares(shares: tuple[float, ...] | None, nodes: int) -> np.ndarray:
+    """``FitContext.cell_shares`` as an array over ``nodes`` segments (equal where None)."""
+    return np.ones(nodes) if shares is None else np.asarray(shares)
+
 
 class Effect:
     """Base of all effects: a frozen dataclass whose float fields are its parameters.
@@ -427,8 +438,7 @@ class SettlingDrift(Effect):
 
     @classmethod
     def starts(cls, context: FitContext) -> tuple[Effect, ...]:
-        shares = None if context.cells is None else tuple((context.cells / np.mean(context.cells)).tolist())
-        return tuple(replace(e, shares=shares) for e in cls._starts(context))
+        return tuple(replace(e, shares=context.cell_shares) for e in cls._starts(context))
 
     @classmethod
     def _starts(cls, context: FitContext) -> tuple[Effect, ...]:
@@ -457,7 +467,7 @@ class SettlingDrift(Effect):
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
         settled = -np.expm1(-np.maximum(np.asarray(t), 0.0) / self.time)
-        shares = np.ones(np.shape(force)[1]) if self.shares is None else np.asarray(self.shares)
+        shares = segment_shares(self.shares, np.shape(force)[1])
         return force + (self.offset + self.amplitude * settled)[:, None] * shares[None]
 
 

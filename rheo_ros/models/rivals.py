@@ -7,10 +7,10 @@ band (stop 68: 9 of 90 out-of-catalogue generator bags named so, each fitting wi
 noise). The named model's residuals cannot tell; only a better alternative can (stop
 70, docs/bench/outside-truth-stop70: the true effect beat the named one by 18-191 in BIC
 in each). These are such alternatives, of kinds a lab meets and the catalogue lacks: a
-sensor with memory (one that lags, one with play) and a material with memory. They are never named missing: where one
-fits the data decisively better than the effects found, the catalogue does not explain
-the data, and the rival describes what the missing effect looks like
-(``diagnosis.discover.rivals``).
+sensor with memory (one that lags, one with play) and a material with memory. They are
+never named missing: where one fits the data decisively better than the effects found,
+the catalogue does not explain the data, and the rival describes what the missing effect
+looks like (``diagnosis.discover.rivals``).
 
 They are ``Effect`` subclasses like any other, fitted by the same machinery, but not
 registered: a user's registered effect of the same kind competes in the catalogue
@@ -25,7 +25,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rheo_ros.models.effects import Effect, FitContext, Release
+from rheo_ros.models.effects import Effect, FitContext, Release, segment_shares
 
 # A lag's recursion is solved in closed form over stretches of at most this many of its
 # times (e^-30: below float64's resolution of the carried value).
@@ -163,19 +163,17 @@ class SensorPlay(Effect):
     @classmethod
     def starts(cls, context: FitContext) -> tuple[Effect, ...]:
         # What stays read after the release is the width itself; or a hundredth of the peak.
-        shares = None if context.cells is None else tuple((context.cells / np.mean(context.cells)).tolist())
         after = (context.force_t > context.profile.t_keep_end)[:, None] & context.live
         level = float(np.mean(context.residual[after])) if after.sum() >= 10 else 0.0
         widths = [level] if level > 1e-6 * context.peak_force else []
-        return tuple(cls(w, shares) for w in (*widths, max(0.01 * context.peak_force, 1e-9)))
+        return tuple(cls(w, context.cell_shares) for w in (*widths, max(0.01 * context.peak_force, 1e-9)))
 
     def describe(self) -> str:
         return (f"each tactile segment reading through a play (hysteresis) of half-width {self.width:.3g} N: "
                 "under on loading, over on unloading, held after the release")
 
     def measured_force(self, t: np.ndarray, force: np.ndarray, release: Release | None) -> np.ndarray:
-        shares = np.ones(np.shape(force)[1]) if self.shares is None else np.asarray(self.shares)
-        return play(force, self.width * shares[None])
+        return play(force, self.width * segment_shares(self.shares, np.shape(force)[1])[None])
 
 
 # Every rival the diagnosis fits, in the order it reports them.
