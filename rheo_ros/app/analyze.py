@@ -10,7 +10,7 @@ final estimate.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
@@ -88,10 +88,9 @@ class SampleNote:
         return self.span is None or (self.span[0] < t1 and self.span[1] > t0)
 
 
-def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None,
-                    samples: Iterable[tuple[str, float, Any]] | None = None) -> Iterator[tuple[str, float, Any]]:
-    """The bag's measurement samples (``bag_samples``, or ``samples`` where given: the same
-    decoded elsewhere, ``io.prefetch``), each through the estimator node's
+def checked_samples(bag: str | Path, setup: Setup,
+                    warnings: list[SampleNote] | None = None) -> Iterator[tuple[str, float, Any]]:
+    """The bag's measurement samples (``bag_samples``), each through the estimator node's
     checks (``io.checks.SampleCheck``: shapes, clock jumps, units, NaN), and at the end a
     topic with no message, or whose header stamps do not advance, refused; a hole in a
     topic's stamps (``GAP_INTERVALS``) appended to ``warnings``.
@@ -106,7 +105,7 @@ def checked_samples(bag: str | Path, setup: Setup, warnings: list[SampleNote] | 
     stale, latest = dict.fromkeys(TOPIC_OF, 0), dict.fromkeys(TOPIC_OF, -float("inf"))
     check = SampleCheck(setup)
     stamps: dict[str, list[float]] = {stream: [] for stream in TOPIC_OF}
-    for stream, t, data in bag_samples(bag) if samples is None else samples:
+    for stream, t, data in bag_samples(bag):
         if stream in TOPIC_OF:
             problem = check.problem(TOPIC_OF[stream], t, data)
             if problem:
@@ -142,6 +141,14 @@ def stamp_gaps(stamps: Sequence[float]) -> list[SampleNote]:
             for k in np.flatnonzero(steps > limit)]
 
 
+def _checked_then_notes(bag: str | Path, setup: Setup) -> Iterator[tuple[str, float, Any] | list[SampleNote]]:
+    """``checked_samples``, then the notes on them as one list: one producer, so that the
+    checks run where the bag is decoded (``io.prefetch``), off the stream work's core."""
+    notes: list[SampleNote] = []
+    yield from checked_samples(bag, setup, notes)
+    yield notes
+
+
 def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | None = None,
                  workers: int | None = None) -> list[Job]:
     """Each push's release job, as the estimator node makes it from the bag (a release
@@ -149,7 +156,8 @@ def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | Non
     bag's samples lacked is appended to it (a hole in a topic; samples out of stamp order,
     which the core drops as the node does, counted as the node's /diagnostics counts them).
     ``workers``: as ``analyze``'s; with more than one the bag is decoded in a process of its
-    own beside the estimator's stream work (``io.prefetch``: the same samples, in order).
+    own, its samples checked there, beside the estimator's stream work (``io.prefetch``: the same
+    samples, in order).
 
     Raises:
         BagError: unreadable bag, missing topic, malformed message.
@@ -161,8 +169,13 @@ def release_jobs(bag: str | Path, setup: Setup, warnings: list[SampleNote] | Non
     jobs: list[Job] = []
     deepest = 0.0
     cuts = None   # releases the node closed on silence: closed here at the same samples
-    with Prefetched(partial(bag_samples, bag), process=(workers or default_workers()) > 1) as decoded:
-        for name, t, data in checked_samples(bag, setup, warnings, decoded):
+    with Prefetched(partial(_checked_then_notes, bag, setup), process=(workers or default_workers()) > 1) as decoded:
+        for item in decoded:
+            if isinstance(item, list):   # the last item: the notes on the samples
+                if warnings is not None:
+                    warnings += item
+                continue
+            name, t, data = item
             if cuts is None:   # the samples' reader has checked every chunk by its first sample
                 cuts = release_cuts(bag, chunks_checked=True)
             while cuts and t > cuts[0][0]:

@@ -70,7 +70,7 @@ def non_finite(topic: str, t: float, data: Any) -> str | None:
             return None
     else:
         with np.errstate(over="ignore", invalid="ignore"):
-            total = np.sum(data)
+            total = data.sum() if isinstance(data, np.ndarray) else np.sum(data)
         if math.isfinite(total):   # NaN and inf carry through a sum (one pass, no mask)
             return None
     values = np.asarray(data, dtype=float)

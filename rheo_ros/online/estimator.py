@@ -496,13 +496,14 @@ class OnlineEstimator:
 
     def add_force(self, t: float, forces: np.ndarray, image: np.ndarray | None = None) -> list[PhaseEvent]:
         """Bottom nodal forces (N) of one tactile frame (and the frame they came from)."""
-        if not self._store("force", t, np.asarray(forces, float)):
+        forces = np.asarray(forces, float)
+        if not self._store("force", t, forces):
             return []
         if image is not None:
             self._unread.append((t, image))
             if len(self._unread) >= self.READOUT_BLOCK:
                 self._read_frames()
-        return self._took(self.segmenter.add_force(t, float(np.sum(forces))))
+        return self._took(self.segmenter.add_force(t, float(forces.sum())))
 
     def add_markers(self, t: float, positions: np.ndarray) -> list[PhaseEvent]:
         positions = np.asarray(positions, float)

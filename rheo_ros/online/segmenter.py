@@ -17,6 +17,7 @@ segmenter keeps the current push's stage samples and a short window of the rest.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, replace
 
@@ -151,7 +152,7 @@ class PhaseSegmenter:
         return True
 
     def add_stage(self, t: float, depth: float) -> list[PhaseEvent]:
-        if not (self._in_order("stage", t) and np.isfinite(depth)):
+        if not (self._in_order("stage", t) and math.isfinite(depth)):
             return []
         if self.state == "settled":
             # The mesh settled (marker stream) at a stamp the stage stream has not
@@ -324,7 +325,7 @@ class PhaseSegmenter:
 
     def add_force(self, t: float, total: float) -> list[PhaseEvent]:
         """Total bottom force (N) of a tactile frame."""
-        if not (self._in_order("force", t) and np.isfinite(total)):
+        if not (self._in_order("force", t) and math.isfinite(total)):
             return []
         if len(self._force_rest) < self.MIN_REST and not self._in_contact:
             self._force_rest.append((t, total))    # no baseline yet: nothing to compare with
