@@ -514,18 +514,23 @@ def test_effects_that_share_one_time_are_the_closest_not_missing():
 
 def test_collapsed_names_what_an_added_effect_took_from_the_base_model():
     """A parameter the base determined and the model with the effect leaves at a bound
-    (infinite std), and a Voigt time c1/E under the sampling interval."""
+    (infinite std), a Voigt time c1/E under the sampling interval, and a dashpot time c2/E
+    beyond DASHPOT_SPANS record spans (a finite std or not)."""
     def fit(params, std):
         return SimpleNamespace(estimate=SimpleNamespace(params=params, std=std, statistics=None))
 
     base = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33}, {"E": 10.0, "c1": 100.0, "c2": 1e5, "gamma": 1e-3})
     whole = fit({"E": 3e4, "c1": 1.7e5, "c2": 3e7, "gamma": 0.33},
                 {"E": 12.0, "c1": 120.0, "c2": np.inf, "gamma": 1e-3})
-    assert decision.collapsed(whole, base, 0.02) == ("c2",)
+    assert decision.collapsed(whole, base, (0.02, 60.0)) == ("c2",)
     tiny = fit({"E": 3e4, "c1": 1.44e-6, "c2": 3e7, "gamma": 0.33},
                {"E": 12.0, "c1": 9.5e-13, "c2": 1e5, "gamma": 1e-3})
-    assert decision.collapsed(tiny, base, 0.02) == ("c1",)
-    assert decision.collapsed(base, base, 0.02) == ()
+    assert decision.collapsed(tiny, base, (0.02, 60.0)) == ("c1",)
+    assert decision.collapsed(base, base, (0.02, 60.0)) == ()
+    # c2 / E = 1e3 s: 17 spans of a 60 s record, resolved; 1.2e6 s, 2e4 spans: not.
+    frozen = fit({**base.estimate.params, "c2": 3.6e10}, {**base.estimate.std, "c2": 1e6})
+    assert decision.collapsed(frozen, base, (0.02, 60.0)) == ("c2",)
+    assert decision.collapsed(frozen, base, (0.02, 60.0 * 1e3)) == ()
 
 
 def test_the_footprint_counts_phases_beyond_five_sd_and_any_effect_of_two_phases(monkeypatch):

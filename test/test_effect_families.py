@@ -267,7 +267,7 @@ def test_a_form_chosen_before_the_next_effect_is_chosen_again_beside_it(tmp_path
     within 1.2)."""
     from generator import bench_bag
 
-    from rheo_ros.diagnosis.decision import collapsed, sample_interval, undetermined
+    from rheo_ros.diagnosis.decision import collapsed, resolved_times, undetermined
     from rheo_ros.diagnosis.discover import revisit_forms
     from rheo_ros.diagnosis.fits import add_effect, polish
 
@@ -277,12 +277,12 @@ def test_a_form_chosen_before_the_next_effect_is_chosen_again_beside_it(tmp_path
     fit = base
     for effect, form in (("relaxation_branch", "two_arms"), ("strain_stiffening", "voigt_exponential")):
         fit = polish(record, forward, add_effect(record, forward, fit, effect, noise, form), noise)
-    assert collapsed(fit, base, sample_interval(record)) == ("c2",) or undetermined(fit, "relaxation_branch")
+    assert collapsed(fit, base, resolved_times(record)) == ("c2",) or undetermined(fit, "relaxation_branch")
 
     revised, changes = revisit_forms(record, forward, fit, base, noise)
     assert revised.forms == {"relaxation_branch": "one_arm", "strain_stiffening": "voigt_exponential"}, changes
     assert revised.bic < fit.bic - 10.0 and len(changes) == 1, changes
-    assert collapsed(revised, base, sample_interval(record)) == ()
+    assert collapsed(revised, base, resolved_times(record)) == ()
     material = json.loads((tmp_path / "bag.truth.json").read_text())
     (arm_stiffness, arm_time), = material["effects"]["maxwell"]
     p, std = revised.estimate.params, revised.estimate.std

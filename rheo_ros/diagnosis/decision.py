@@ -111,6 +111,11 @@ DETECT_SIGMAS = 3.0
 # model with effects added may not leave (``leftover``).
 EXCESS_SIGMAS = 5.0
 EXCESS_EXPLAINED = 0.5
+# A dashpot time c2/E beyond this many record spans flows by under 1e-4 of the strain over
+# the record: no reading tells it from none (``collapsed``). Fits that explain their data
+# reach 50 spans (c2 / E up to 3.8e3 s on 60-80 s records); the next, at 1.6e4 spans and
+# beyond, all misfit (stop 73, generator seeds 10, 32, 40).
+DASHPOT_SPANS = 1e4
 # Two effects named together whose own times (``Effect.times``) agree within this (|ln of
 # their ratio|: 10 %) share one time, which effects of separate causes do not. A sensor's
 # first-order lag reads as a Maxwell arm in the keep and a fading adhesion in the release
@@ -455,16 +460,22 @@ def undetermined(fit: ModelFit, effect_id: str, relative_limit: float = DETERMIN
     return out
 
 
-def collapsed(fit: ModelFit, base: ModelFit, sample_interval: float) -> tuple[str, ...]:
+def collapsed(fit: ModelFit, base: ModelFit, times: tuple[float, float]) -> tuple[str, ...]:
     """The base parameters that ``fit`` (the base model with effects added) lost: one the
-    base fit determined (finite std) and ``fit`` leaves at a bound (infinite std), and a
-    Voigt time c1/E shorter than ``sample_interval`` (s; no reading resolves it: a dashpot
-    run towards zero while an effect carries the response)."""
+    base fit determined (finite std) and ``fit`` leaves at a bound (infinite std), a Voigt
+    time c1/E shorter than the readings' interval and a dashpot time c2/E longer than
+    ``DASHPOT_SPANS`` of the record's span (``times``: both in s, ``resolved_times``). No
+    reading resolves either: a dashpot run towards zero, or towards infinity, while an
+    effect carries the response (generator seed 10 bag 2: beside two arms, c2 / E at
+    1.8e9 s in a 58 s record, with a local std of 2e-5 of it that says nothing)."""
     std, base_std, p = fit.estimate.std, base.estimate.std, fit.estimate.params
     out = [n for n in ("E", "c1", "c2", "gamma")
            if np.isfinite(base_std.get(n, np.inf)) and not np.isfinite(std.get(n, np.inf))]
-    if "c1" not in out and p["c1"] / p["E"] < sample_interval:
+    interval, span = times
+    if "c1" not in out and p["c1"] / p["E"] < interval:
         out.append("c1")
+    if "c2" not in out and p["c2"] / p["E"] > DASHPOT_SPANS * span:
+        out.append("c2")
     return tuple(out)
 
 
@@ -517,16 +528,18 @@ def shared_times(fit: ModelFit) -> tuple[str, ...]:
                  if a.id != b.id and within(ra, rb))
 
 
-def sample_interval(record: Record) -> float:
-    """The tactile readings' typical interval (s): the shortest time the data resolve."""
-    return float(np.median(np.diff(record.force_t))) if record.force_t.size > 1 else 0.0
+def resolved_times(record: Record) -> tuple[float, float]:
+    """The shortest and the longest time the data resolve (s): the tactile readings'
+    typical interval and the record's span (``collapsed``)."""
+    t = record.force_t
+    return (float(np.median(np.diff(t))), float(t[-1] - t[0])) if t.size > 1 else (0.0, 0.0)
 
 
 def at_bound(fit: ModelFit, base: ModelFit, record: Record) -> tuple[str, ...]:
     """The parameters of ``fit`` that are no measurement: the base's it lost
     (``collapsed``, against the ``base`` fit) and its effects' the data do not pin down
     (``undetermined``: run off to a bound). Reported with no std, as at a bound."""
-    lost = collapsed(fit, base, sample_interval(record)) if fit is not base else ()
+    lost = collapsed(fit, base, resolved_times(record)) if fit is not base else ()
     return (*lost, *(name for e in fit.model.effects for name in undetermined(fit, e.id)))
 
 

@@ -24,7 +24,7 @@ from rheo_ros.diagnosis.decision import (
     judged_where,
     leftover,
     phase_excess,
-    sample_interval,
+    resolved_times,
     shared_times,
     undetermined,
 )
@@ -70,10 +70,10 @@ def try_effect(record: Record, forward: QuasiStaticFE, current: ModelFit, effect
                noise: SensorNoise, form: str | None = None) -> Candidate:
     """Fit ``current`` + the effect in ``form`` (default: the family's default) and judge it;
     its second start is fitted only where the first fit is no answer (``_sound``)."""
-    interval = sample_interval(record)
+    times = resolved_times(record)
     try:
         best = add_effect(record, forward, current, effect_id, noise, form,
-                          sound=lambda fit: _sound(fit, effect_id, current, interval, current))
+                          sound=lambda fit: _sound(fit, effect_id, current, times, current))
     except Exception as exc:  # a user's effect may fail in any way: it loses, the diagnosis goes on
         return Candidate(effect_id, None, np.inf, np.nan, 0.0, 0.0, 0.0, False, False,
                          note=f"the fit failed: {type(exc).__name__}: {exc}",
@@ -134,13 +134,13 @@ def refine_forms(record: Record, forward: QuasiStaticFE, winner: Candidate, nois
     return best
 
 
-def _flawed(fit: ModelFit, base: ModelFit, interval: float) -> bool:
+def _flawed(fit: ModelFit, base: ModelFit, times: tuple[float, float]) -> bool:
     """``fit`` is no answer as it stands: a base parameter lost to a bound (``collapsed``),
     a misfit, or a phase left misfitting (``leftover``)."""
-    return bool(collapsed(fit, base, interval) or fit.misfits or leftover(fit))
+    return bool(collapsed(fit, base, times) or fit.misfits or leftover(fit))
 
 
-def _sound(fit: ModelFit, effect_id: str, base: ModelFit, interval: float,
+def _sound(fit: ModelFit, effect_id: str, base: ModelFit, times: tuple[float, float],
            without: ModelFit | None = None) -> bool:
     """``fit`` (with ``effect_id``) is an answer as it stands: not ``_flawed`` against
     ``base``, and either the data pin the effect's parameters down (``undetermined``) or
@@ -151,7 +151,7 @@ def _sound(fit: ModelFit, effect_id: str, base: ModelFit, interval: float,
     18), and from the second with it bounded. An idle effect on data that fit within the
     noise is undetermined by nature; a second start for it is a whole fit that earns
     nothing."""
-    if _flawed(fit, base, interval):
+    if _flawed(fit, base, times):
         return False
     return not undetermined(fit, effect_id) or (without is not None and fit.bic >= without.bic)
 
@@ -171,13 +171,13 @@ def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: M
     and with the stiffening found next c2 ran off to its bound; one arm with the stiffening
     fits better (BIC lower by 22), every parameter within its std of the truth. Returns the
     model and what changed, in words."""
-    interval = sample_interval(record)
+    times = resolved_times(record)
 
     def lost(f: ModelFit) -> tuple[str, ...]:
-        return collapsed(f, base, interval)
+        return collapsed(f, base, times)
 
     def flawed(f: ModelFit) -> bool:
-        return _flawed(f, base, interval)
+        return _flawed(f, base, times)
 
     changes: list[str] = []
     effects = fit.model.effects
@@ -192,7 +192,7 @@ def revisit_forms(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: M
         if progress:
             progress(f"{fit.name}: {effect_id} in its {', '.join(c.form for c in others)} form(s)")
         trials = [other_form(record, forward, fit, index, cls, noise, base,
-                             sound=lambda f: _sound(f, effect_id, base, interval)) for cls in others]
+                             sound=lambda f: _sound(f, effect_id, base, times)) for cls in others]
         trial = min(trials, key=lambda f: (bool(lost(f)), f.bic))
         if not lost(fit) and trial.bic >= fit.bic + max(BIC_DECISIVE, FORM_WINDOW * abs(fit.bic - base.bic)):
             continue   # a screening fit this far behind does not overtake once refined
@@ -224,7 +224,7 @@ def drop_idle(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: Model
     the pull's curve first (the drift's settling forms were not tried beside a leader that
     far ahead); with the drift found next the stiffening's coefficient fell to zero, and both
     were named. Returns the model, the effects taken out, and why, in words."""
-    interval = sample_interval(record)
+    times = resolved_times(record)
     dropped: list[str] = []
     words: list[str] = []
     for effect_id in [e.id for e in fit.model.effects[:-1]]:
@@ -233,7 +233,7 @@ def drop_idle(record: Record, forward: QuasiStaticFE, fit: ModelFit, base: Model
             progress(f"{fit.name}: without {effect_id}")
         start = {k: fit.estimate.params[k] for k in BASE_PARAMETERS}
         trial = polish(record, forward, fit_model(record, forward, rest, start, noise), noise)
-        if trial.bic >= fit.bic + BIC_DECISIVE or (_flawed(trial, base, interval) and not _flawed(fit, base, interval)):
+        if trial.bic >= fit.bic + BIC_DECISIVE or (_flawed(trial, base, times) and not _flawed(fit, base, times)):
             continue
         change = trial.bic - fit.bic
         words.append(f"{effect_id} no longer earns its parameters beside "
@@ -284,11 +284,11 @@ def try_rival(record: Record, forward: QuasiStaticFE, base: ModelFit, judged: Mo
     fitted then (a polish and a start are whole fits: with both, the analysis of
     in-catalogue generator bags with an effect named took 1.5-2.7 x as long, the rivals
     thousands behind)."""
-    interval = sample_interval(record)
+    times = resolved_times(record)
     bar = judged.bic + max(BIC_DECISIVE, FORM_WINDOW * abs(judged.bic - base.bic))
 
     def settled(f: ModelFit) -> bool:   # an answer, or so far behind that a second start is not fitted
-        return f.bic >= bar or _sound(f, rival.id, base, interval, base)
+        return f.bic >= bar or _sound(f, rival.id, base, times, base)
 
     try:
         fit = add_effect(record, forward, base, rival, noise, sound=settled)
@@ -297,7 +297,7 @@ def try_rival(record: Record, forward: QuasiStaticFE, base: ModelFit, judged: Mo
     except Exception as exc:  # a rival that cannot be fitted is no rival; the verdict stands
         return Rival(rival.id, f"the fit failed: {type(exc).__name__}: {exc}", np.inf, False)
     effect = next(e for e in fit.model.effects if e.id == rival.id)
-    return Rival(rival.id, effect.describe(), fit.bic - judged.bic, _sound(fit, rival.id, base, interval), fit)
+    return Rival(rival.id, effect.describe(), fit.bic - judged.bic, _sound(fit, rival.id, base, times), fit)
 
 
 def rivals(record: Record, forward: QuasiStaticFE, models: Sequence[ModelFit], noise: SensorNoise,
@@ -389,7 +389,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
             if retried is not None:
                 verdict, revisited = retried
         if len(models) > 1:   # effects added: did they leave the base model whole?
-            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], sample_interval(record)),
+            verdict = replace(verdict, degenerate=collapsed(models[-1], models[0], resolved_times(record)),
                               leftover=leftover(models[-1]), shared_times=shared_times(models[-1]))
         if verdict.missing_effect is None or len(models) > limit:
             found = rivals(record, forward, models, noise, workers or default_workers())
@@ -408,7 +408,7 @@ def discover(record: Record, forward: QuasiStaticFE, base: ModelFit, candidates:
             models.append(refine_forms(record, forward, winner, noise))
         changes = revisited or []
         if revisited is None and (len(models[-1].model.effects) > 1
-                                  or collapsed(models[-1], base, sample_interval(record))):
+                                  or collapsed(models[-1], base, resolved_times(record))):
             if progress:
                 progress(f"choosing the forms of {models[-1].name} again")
             models[-1], changes = revisit_forms(record, forward, models[-1], base, noise, progress)
